@@ -117,6 +117,9 @@ class ViolationMonitor(MonitorState):
         pair_names: (pairs,) ``"geom_a|geom_b"``, the guard's collision pairs in its order.
         hard_joint_ticks: (envs, n) int64, ticks on which each joint was beyond its hard limit
             while the env was up: which joints make the ``hard_limit`` ticks of ``counts``.
+        hard_joint_depth: (envs, n) rad, how far past its hard limit each joint's true position
+            ever was while the env was up (0: never past): how deep the ``hard_limit`` ticks went.
+        down_hard_joint_ticks, down_hard_joint_depth: the same, of the ticks the env was down.
         any: (envs,) int64, ticks with at least one violation of any type.
         down_counts, down_any: the same, of the ticks on which the env was *down*: a legged
             robot lying damped after a stop (``down`` of :meth:`update`). What a fallen robot's
@@ -196,6 +199,9 @@ class ViolationMonitor(MonitorState):
         self.reference_ticks = np.zeros(envs, dtype=np.int64)
         self.reference_pair_ticks = np.zeros((envs, len(self.pair_names)), dtype=np.int64)
         self.hard_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.hard_joint_depth = np.zeros((envs, n))
+        self.down_hard_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.down_hard_joint_depth = np.zeros((envs, n))
         # the collision screen (compiled path): no pair can touch while its distance computed at
         # checked_q exceeds its own bound on how far the joints moved since
         # (sim2real.robots.chain_bounds.collision_pair_weights; an exact screen, as the guard's)
@@ -398,6 +404,11 @@ class ViolationMonitor(MonitorState):
         down = self._down
         up = ~down  # only on a tick something was flagged
         self.hard_joint_ticks += beyond & up[:, None]
+        self.down_hard_joint_ticks += beyond & down[:, None]
+        if beyond.any():  # rad past the limit, the deepest kept (up and down apart)
+            depth = np.maximum(self._lower - q, q - self._upper)
+            for rows, deepest in ((up, self.hard_joint_depth), (down, self.down_hard_joint_depth)):
+                np.maximum(deepest, np.where(beyond & rows[:, None], depth, 0.0), out=deepest)
         for name, flags in tests:
             counts[name] += flags & up
             self.down_counts[name] += flags & down
@@ -412,6 +423,23 @@ class ViolationMonitor(MonitorState):
         order = np.argsort(-ticks, kind="stable")
         names = self.robot.joint_names
         return {names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
+
+    def hard_limit_depths(self, env: int | None = None, down: bool = False) -> dict[str, dict]:
+        """Each joint that was ever beyond its hard limit (while up; with ``down``, while lying
+        down after a stop), most ticks first: ``{joint: {"ticks": int, "depth_rad": float}}``,
+        its ticks past and how far past it was at most (rad), of env ``env`` (None: the ticks
+        summed and the deepest over every env)."""
+        ticks = self.down_hard_joint_ticks if down else self.hard_joint_ticks
+        depth = self.down_hard_joint_depth if down else self.hard_joint_depth
+        ticks = ticks.sum(axis=0) if env is None else ticks[env]
+        depth = depth.max(axis=0) if env is None else depth[env]
+        order = np.argsort(-ticks, kind="stable")
+        names = self.robot.joint_names
+        return {
+            names[k]: {"ticks": int(ticks[k]), "depth_rad": float(depth[k])}
+            for k in order
+            if ticks[k] > 0
+        }
 
     # ------------------------------------------------------------------ reading
     def totals(self, down: bool = False) -> dict[str, int]:
@@ -439,6 +467,9 @@ class ViolationMonitor(MonitorState):
         out["reference_ticks"] = self.reference_ticks
         out["reference_pair_ticks"] = self.reference_pair_ticks
         out["hard_joint_ticks"] = self.hard_joint_ticks
+        out["hard_joint_depth"] = self.hard_joint_depth
+        out["down/hard_joint_ticks"] = self.down_hard_joint_ticks
+        out["down/hard_joint_depth"] = self.down_hard_joint_depth
         return out
 
 

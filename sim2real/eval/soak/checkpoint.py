@@ -72,7 +72,10 @@ FORMAT = "soak-checkpoint"
 #: 15: a motion-tracking session's judged figures and play log (``figures/...``: its clips,
 #: their errors and heat); a version 14 checkpoint has none, and a resume from it lost the clips
 #: played before the checkpoint.
-VERSION = 15
+#: 16: how far past its hard limit each joint went, up and lying down, and its ticks lying down
+#: (``violations/hard_joint_depth``, ``violations/down/hard_joint_ticks``,
+#: ``violations/down/hard_joint_depth``); a version 15 checkpoint has none.
+VERSION = 16
 MANIFEST = "checkpoint.json"
 
 

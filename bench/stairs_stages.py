@@ -42,7 +42,8 @@ from sim2real.deploy.core.modes import RUNNING
 
 CROSSED_X = 4.0  # m, bench.himloco_terrain_loop's
 STAGES = (
-    "guard", "pd_barrier", "hard_stop", "truth_obs", "noisy_truth_obs", "fall", "runtime", "ramp"
+    "guard", "pd_barrier", "hard_stop", "truth_obs", "noisy_truth_obs", "fall", "runtime", "ramp",
+    "heavy_calves", "still_loaded_heavy",
 )  # fmt: skip
 
 
@@ -76,6 +77,35 @@ def _switch_off(rig, stages: set[str], seed: int = 0) -> None:
             return got
 
         guard.filter = no_barrier
+    if "still_loaded_heavy" in stages:  # an experiment: the numpy reference guard, whose
+        # barrier judges a loaded joint at rest or moving away with the heavier inertia only
+        from sim2real.deploy.safety import pd_barrier as pb
+        from sim2real.deploy.safety.reference import ReferenceGuard
+
+        def barrier_np(t, q, v, bound, effort, d, c, loaded):
+            hi = np.maximum(bound, q)
+            r = pb._barrier_one_np(t, q, v, hi, effort, d, c, c[pb.INV_INERTIA], True)
+            heavy = pb._barrier_one_np(t, q, v, hi, effort, d, c, c[pb.INV_HEAVY], True)
+            toward = np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
+            return np.where(loaded & (v <= 0.0), heavy, toward)
+
+        pb._barrier_np = barrier_np
+        ref = ReferenceGuard(rig.robot, rt.envs, "position")
+        ref.reset(rt.state.q)
+
+        def ref_filter(target, state, out=None, commanded_position=None):
+            got = ref.filter(target, state, out=out)
+            guard.count_matrix[:] = ref.count_matrix
+            guard.hard_violation[:] = ref.hard_violation
+            return got
+
+        guard.filter = ref_filter
+    if "heavy_calves" in stages:  # the barrier judges the knees 3x heavier (an experiment)
+        from sim2real.deploy.safety import pd_barrier as pb
+
+        own = guard._arrays.own[1]  # noqa: SLF001 - the PD barrier's constants (GUARD_CHECKS[1])
+        knees = [j for j, n in enumerate(rig.robot.joint_names) if "calf" in n or "knee" in n]
+        own[pb.INV_INERTIA, knees] = own[pb.INV_HEAVY, knees]
     if "hard_stop" in stages:
         guard.set_stopping("hard_limit", False)
     if "truth_obs" in stages or "noisy_truth_obs" in stages:
@@ -186,9 +216,14 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
     ticks = rig.violations.hard_joint_ticks[0]
     out["hard"] = {robot.joint_names[j]: int(t) for j, t in enumerate(ticks) if t}
     out["hard"].update(report["hard_violations"])
-    out["depth"] = {k: round(v["depth_rad"], 4) for k, v in report["violations"]["hard_limit_joints"].items()}
-    out["interventions"] = {k: v for k, v in report["interventions"].items() if v} if isinstance(
-        report.get("interventions"), dict) else report.get("interventions")
+    out["depth"] = {
+        k: round(v["depth_rad"], 4) for k, v in report["violations"]["hard_limit_joints"].items()
+    }
+    out["interventions"] = (
+        {k: v for k, v in report["interventions"].items() if v}
+        if isinstance(report.get("interventions"), dict)
+        else report.get("interventions")
+    )
     backend.close()
     return out
 

@@ -13,10 +13,13 @@ saturated by the effort limit (derated when hot) and the motor's torque-speed li
 effective inertia ``1 / (M^-1)_jj``, the other joints free, from Pinocchio's mass matrix, legs in
 the air, over the home pose and ``INERTIA_POSES`` seeded poses: :func:`least_inertia`), and
 for a joint on a loaded foot's chain moving toward the limit also ``INERTIA_SPREAD`` times it,
-the target safe under both; the gravity torque toward the limit tested at the estimate
-(:func:`barrier_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of the joint's all-pose
-bound :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit
-Euler from the estimate ``(q, dq)``.
+the target safe under both (a loaded joint whose motion toward the limit drives its foot into
+the ground, :func:`pressing_joints`, with ``INERTIA_SPREAD`` times it alone: its push lifts the
+body, not the leg; a Go2's knee extending to climb a step); the gravity torque toward the
+limit tested at the estimate (:func:`barrier_rows`: the base's estimated tilt, plus
+``SLACK_SHARE`` of the joint's all-pose bound
+:func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit Euler
+from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
@@ -62,7 +65,11 @@ BRAKE = 11
 SLACK = 12
 #: Row of 1 / (``INERTIA_SPREAD`` times the least inertia) (1/(kg m^2)): the heavier joint.
 INV_HEAVY = 13
-ROWS = 14
+#: Rows of 1.0 where a joint's motion toward its upper (``PRESS_UP``) or lower (``PRESS_DOWN``)
+#: limit drives its foot into the ground (:func:`pressing_joints`): on a loaded foot's chain it
+#: lifts the body, not the leg, and is judged with the heavier inertia only.
+PRESS_UP, PRESS_DOWN = 14, 15
+ROWS = 16
 #: Rows ``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``: env ``e``'s gravity torque toward the upper
 #: and toward the lower limit over the next period (N m, :func:`barrier_rows`), after ``ROWS``;
 #: then, row ``TOWARD + 2 envs + e``: env ``e``'s joints on the chain of a foot in contact
@@ -91,6 +98,13 @@ SLACK_SHARE = 0.25
 #: braking). Our choice: 3, above the 1.6-2.7 fitted at a G1 ankle's lift-off
 #: (docs/measurements.md).
 INERTIA_SPREAD = 3.0
+#: m/rad: how far a joint's motion must move its foot down (the base frame's -z, at the home
+#: pose) per radian toward a limit to count as pressing the foot into the ground
+#: (:func:`pressing_joints`). Our choice: 0.05, under a Go2 knee's 0.10-0.14 (its extension
+#: pushes a foot in stance into the ground: climbing a step, the policy's own loop holds its
+#: rear knees there) and above a humanoid's knee's 0.03 and its ankle roll's 0 (a foot rolling
+#: on its edge as it lifts off: the least inertia's case).
+PRESS_LEVER = 0.05
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32
 #: Seeded poses, uniform within the joints' ranges, over which the least inertia is taken.
@@ -154,14 +168,17 @@ def _barrier_one(t, q, v, hi, effort, d, j, own, inv_i, stuck) -> float:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _barrier(t, q, v, bound, effort, d, j, own, loaded) -> float:
+def _barrier(t, q, v, bound, effort, d, j, own, loaded, press) -> float:
     """The least change of target ``t`` that makes the upper side's prediction safe with the
     least inertia and, ``loaded`` and moving toward the bound, with the heavier one (``t``
     itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit, ``d``
     the gravity torque toward the bound (N m). Where no target keeps the heavier joint off the
     bound, its motion is not the drive's to stop within the period: the least inertia's answer
-    stands."""
+    stands. ``loaded`` and ``press`` (its motion toward the bound drives its foot into the
+    ground: row ``PRESS_UP``): the heavier inertia's answer alone (the push lifts the body)."""
     hi = np_max(bound, q)  # past the bound already: no farther
+    if loaded and press:
+        return _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_HEAVY, j], True)
     r = _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_INERTIA, j], True)
     if loaded and v > 0.0:
         r = np_min(r, _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_HEAVY, j], False))
@@ -182,10 +199,12 @@ def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
         t = out[e, j]
         effort = g.lim[EFFORT, j] * g.effort_scale[e, j]
         on = loaded[j] > 0.0
-        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own, on)
+        press = own[PRESS_UP, j] > 0.0
+        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own, on, press)
         if r == t:
             qj, vj, bound = -q[e, j], -dq[e, j], own[BOUND_DOWN, j]
-            r = -_barrier(-t, qj, vj, bound, effort, down[j], j, own, on)
+            press = own[PRESS_DOWN, j] > 0.0
+            r = -_barrier(-t, qj, vj, bound, effort, down[j], j, own, on, press)
         if r != t:
             changed = True
             out[e, j] = r
@@ -230,6 +249,7 @@ def pd_barrier_constants(guard) -> np.ndarray:
         least = least_inertia(robot)
         c[INV_INERTIA] = 1.0 / least
         c[INV_HEAVY] = 1.0 / (INERTIA_SPREAD * least)
+        c[PRESS_UP], c[PRESS_DOWN] = pressing_joints(robot)
         c[GRAVITY] = guard.gravity_bound
         envelope = TorqueSpeedEnvelope(robot.motors)
         c[STALL] = np.where(envelope.active, envelope.stall_coefficient, np.inf)
@@ -370,6 +390,30 @@ def _rows_env(torque, c, contact, chains, e: int) -> None:
         loaded[j] = total
 
 
+def pressing_joints(robot) -> np.ndarray:
+    """(2, n) float64: 1.0 where moving joint ``j`` toward its upper (row 0) or lower (row 1)
+    limit moves the foot whose chain holds it down by more than ``PRESS_LEVER`` m per radian
+    (the foot frame's Jacobian along the base's z axis at the home pose, the fixed-base model's:
+    a foot in stance is driven into the ground, the body lifted); zeros for an arm. A Go2's
+    knees press toward their upper limit (extension), its hips' abduction toward one limit each;
+    a humanoid's ankle roll does not (its foot frame sits on the roll axis)."""
+    model = robot.fixed_base_model
+    data = model.createData()
+    q = np.asarray(robot.home, dtype=np.float64)
+    pin.computeJointJacobians(model, data, q)
+    pin.framesForwardKinematics(model, data, q)
+    out = np.zeros((2, robot.n_joints))
+    chains = foot_chains(robot)
+    for f, frame in enumerate(robot.foot_frame_ids):
+        z = pin.getFrameJacobian(model, data, frame, pin.LOCAL_WORLD_ALIGNED)[2]
+        for j, name in enumerate(robot.joint_names):
+            if chains[f, j] > 0.0:
+                dz = z[model.joints[model.getJointId(name)].idx_v]
+                out[0, j] = max(out[0, j], float(dz < -PRESS_LEVER))
+                out[1, j] = max(out[1, j], float(dz > PRESS_LEVER))
+    return out
+
+
 def foot_chains(robot) -> np.ndarray:
     """(n_feet, n) float64: 1.0 where joint ``j`` is on the chain from the base to foot ``f``
     (Pinocchio's ``supports`` of the foot frame's parent joint); (0, n) for an arm."""
@@ -423,13 +467,15 @@ def _barrier_one_np(t, q, v, hi, effort, d, c, inv_i, stuck_brakes: bool) -> np.
     return np.where(unsafe, np.where(stuck, held, lo), t)
 
 
-def _barrier_np(t, q, v, bound, effort, d, c, loaded) -> np.ndarray:
+def _barrier_np(t, q, v, bound, effort, d, c, loaded, press) -> np.ndarray:
     """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m, ``loaded`` (envs,
-    n) bool)."""
+    n) bool, ``press`` (n,) bool)."""
     hi = np.maximum(bound, q)
     r = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_INERTIA], True)
     heavy = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_HEAVY], False)
-    return np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
+    r = np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
+    pressed = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_HEAVY], True)
+    return np.where(loaded & press, pressed, r)
 
 
 class PdBarrier(GuardCheck):
@@ -459,8 +505,8 @@ class PdBarrier(GuardCheck):
         up, down = c[TOWARD : TOWARD + 2 * envs : 2], c[TOWARD + 1 : TOWARD + 2 * envs : 2]
         on = c[TOWARD + 2 * envs : TOWARD + 3 * envs] > 0.0
         t = out.copy()
-        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c, on)
-        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c, on)
+        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c, on, c[PRESS_UP] > 0.0)
+        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c, on, c[PRESS_DOWN] > 0.0)
         r = np.where(r == t, down, r)
         r = np.where(c[ACTIVE] != 0.0, r, t)  # the PD joints only
         changed = (r != t).any(axis=1)

@@ -118,6 +118,13 @@ def test_deploy_run_names_the_joint_how_deep_and_how_long_when_it_exits_1(tmp_pa
             f"{j['depth_rad']:.4f} rad"
         )
         assert line in out, out
+    # the joints above their velocity limit too: the cable swings the arm past it
+    assert r["hard_violations"]["velocity"] > 0
+    speeds = r["violations"]["velocity_joints"]
+    assert max(j["ticks"] for j in speeds.values()) <= r["hard_violations"]["velocity"]
+    for name, j in speeds.items():
+        assert j["excess"] > 0.0
+        assert f"velocity: {name} above its velocity limit on {j['ticks']} ticks" in out, out
 
 
 def test_each_violation_type_counts_once_per_tick_from_the_true_state(arm3):

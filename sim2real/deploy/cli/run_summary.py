@@ -199,8 +199,9 @@ def _print_violations(r: dict) -> None:
 def hard_violation_lines(v: dict) -> list[str]:
     """What a run's hard violations were, one line each (``deploy-run``'s summary under HARD
     VIOLATIONS): every joint past its hard limit with its ticks and how far past it was at most
-    (rad and degrees; up, then lying down after a stop), and every self-collision pair that
-    touched with its ticks; from the report's ``violations`` (:meth:`Rig.violation_report
+    (rad and degrees; up, then lying down after a stop), every joint above its velocity or
+    effort limit with its ticks and how far above (rad/s, N m), and every self-collision pair
+    that touched with its ticks; from the report's ``violations`` (:meth:`Rig.violation_report
     <sim2real.deploy.rig.rig.Rig.violation_report>`). Empty where the report holds none of them
     (one written before they were kept)."""
     lines = []
@@ -210,6 +211,12 @@ def hard_violation_lines(v: dict) -> list[str]:
             lines.append(
                 f"hard_limit{where}: {joint} past its hard limit on {j['ticks']} ticks, at most "
                 f"{depth:.4f} rad ({math.degrees(depth):.2f} deg) past it"
+            )
+    for kind, unit in (("velocity", "rad/s"), ("effort", "N m")):
+        for joint, j in (v.get(f"{kind}_joints") or {}).items():
+            lines.append(
+                f"{kind}: {joint} above its {kind} limit on {j['ticks']} ticks, at most "
+                f"{j['excess']:.3g} {unit} above it"
             )
     for pair, ticks in (v.get("self_collision_pairs") or {}).items():
         lines.append(f"self_collision: {pair.replace('|', ' and ')} in contact on {ticks} ticks")

@@ -120,6 +120,9 @@ class ViolationMonitor(MonitorState):
         hard_joint_depth: (envs, n) rad, how far past its hard limit each joint's true position
             ever was while the env was up (0: never past): how deep the ``hard_limit`` ticks went.
         down_hard_joint_ticks, down_hard_joint_depth: the same, of the ticks the env was down.
+        speed_joint_ticks, speed_joint_excess: (envs, n) int64 and rad/s, ticks on which each
+            joint's true speed was above its velocity limit and by how much at most (up or
+            down); effort_joint_ticks, effort_joint_excess: the same of its torque (N m).
         any: (envs,) int64, ticks with at least one violation of any type.
         down_counts, down_any: the same, of the ticks on which the env was *down*: a legged
             robot lying damped after a stop (``down`` of :meth:`update`). What a fallen robot's
@@ -202,6 +205,10 @@ class ViolationMonitor(MonitorState):
         self.hard_joint_depth = np.zeros((envs, n))
         self.down_hard_joint_ticks = np.zeros((envs, n), dtype=np.int64)
         self.down_hard_joint_depth = np.zeros((envs, n))
+        self.speed_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.speed_joint_excess = np.zeros((envs, n))
+        self.effort_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.effort_joint_excess = np.zeros((envs, n))
         # the collision screen (compiled path): no pair can touch while its distance computed at
         # checked_q exceeds its own bound on how far the joints moved since
         # (sim2real.robots.chain_bounds.collision_pair_weights; an exact screen, as the guard's)
@@ -409,6 +416,13 @@ class ViolationMonitor(MonitorState):
             depth = np.maximum(self._lower - q, q - self._upper)
             for rows, deepest in ((up, self.hard_joint_depth), (down, self.down_hard_joint_depth)):
                 np.maximum(deepest, np.where(beyond & rows[:, None], depth, 0.0), out=deepest)
+        for value, limit, ticks, excess in (
+            (dq, self._velocity, self.speed_joint_ticks, self.speed_joint_excess),
+            (tau, self._effort, self.effort_joint_ticks, self.effort_joint_excess),
+        ):
+            above = np.abs(value) - limit
+            ticks += above > 0.0
+            np.maximum(excess, np.where(above > 0.0, above, 0.0), out=excess)
         for name, flags in tests:
             counts[name] += flags & up
             self.down_counts[name] += flags & down
@@ -423,6 +437,23 @@ class ViolationMonitor(MonitorState):
         order = np.argsort(-ticks, kind="stable")
         names = self.robot.joint_names
         return {names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
+
+    def joint_excess(self, kind: str) -> dict[str, dict]:
+        """Every env's joints above their ``kind`` (``"velocity"`` or ``"effort"``) limit, most
+        ticks first: ``{joint: {"ticks": int, "excess": float}}``, the ticks (summed) and how far
+        above the limit at most (rad/s or N m; up or lying down)."""
+        ticks, excess = {
+            "velocity": (self.speed_joint_ticks, self.speed_joint_excess),
+            "effort": (self.effort_joint_ticks, self.effort_joint_excess),
+        }[kind]
+        ticks, excess = ticks.sum(axis=0), excess.max(axis=0)
+        order = np.argsort(-ticks, kind="stable")
+        names = self.robot.joint_names
+        return {
+            names[k]: {"ticks": int(ticks[k]), "excess": float(excess[k])}
+            for k in order
+            if ticks[k] > 0
+        }
 
     def hard_limit_depths(self, env: int | None = None, down: bool = False) -> dict[str, dict]:
         """Each joint that was ever beyond its hard limit (while up; with ``down``, while lying
@@ -470,6 +501,10 @@ class ViolationMonitor(MonitorState):
         out["hard_joint_depth"] = self.hard_joint_depth
         out["down/hard_joint_ticks"] = self.down_hard_joint_ticks
         out["down/hard_joint_depth"] = self.down_hard_joint_depth
+        out["speed_joint_ticks"] = self.speed_joint_ticks
+        out["speed_joint_excess"] = self.speed_joint_excess
+        out["effort_joint_ticks"] = self.effort_joint_ticks
+        out["effort_joint_excess"] = self.effort_joint_excess
         return out
 
 

@@ -74,7 +74,9 @@ FORMAT = "soak-checkpoint"
 #: played before the checkpoint.
 #: 16: how far past its hard limit each joint went, up and lying down, and its ticks lying down
 #: (``violations/hard_joint_depth``, ``violations/down/hard_joint_ticks``,
-#: ``violations/down/hard_joint_depth``); a version 15 checkpoint has none.
+#: ``violations/down/hard_joint_depth``), and each joint's ticks above its velocity and effort
+#: limits and how far (``violations/speed_joint_*``, ``violations/effort_joint_*``); a version
+#: 15 checkpoint has none.
 VERSION = 16
 MANIFEST = "checkpoint.json"
 

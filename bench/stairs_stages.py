@@ -4,7 +4,13 @@ with the runtime's stages switched off one at a time: where does our runtime sta
 policy's own loop crosses?
 
 ``python -m bench.stairs_stages --robot ROBOT_DIR --policy POLICY.onnx --tile stairs_up:0.13
---seeds 0-9 [--seconds 20] [--command 0.5,0,0] [--off STAGE[,STAGE]] [--heading-hold 0.5]``
+--seeds 0-9 [--seconds 20] [--command 0.5,0,0] [--off STAGE[,STAGE]] [--heading-hold 0.5]
+[--stand-max S] [--whole]``
+
+``--seconds`` are walked (RUNNING, from the command; ``--whole``: deploy-run's ``--duration``,
+its start included); ``--stand-max S``: each seed stands U(0, S) s before its command, drawn as
+:func:`bench.himloco_terrain_loop.start_delay` draws it (the gait's phase at the first step is
+the start's: docs/soak.md, "The first-step stall").
 
 Each run is ``deploy-run --backend sim --robot ROBOT --policy POLICY --terrain TILE --command C
 --duration SECONDS --seed S`` built with deploy-run's own functions (the same rig, backend and
@@ -13,8 +19,8 @@ stages an evaluation may switch off; none of them is a deploy-run option):
 
 - ``guard``: the guard's filter returns the policy's target unchanged (no PD barrier, no
   hard-limit stop) and its motion check passes the command through;
-- ``pd_barrier``: the guard runs, its PD barrier never changes a target (the check's
-  per-env count row is left at 0: its kernel's ``stops``/bounds untouched, the clamp undone);
+- ``pd_barrier``: the guard runs, its PD barrier's changes undone (an env whose barrier
+  count moved gets the target it was given; the barrier only changes PD targets);
 - ``hard_stop``: the guard's hard-limit rule counts but never stops
   (:meth:`SafetyGuard.set_stopping`);
 - ``truth_obs``: the policy observes the plant's true joints and base (gyro, gravity), not the
@@ -24,10 +30,14 @@ stages an evaluation may switch off; none of them is a deploy-run option):
   ``--sensor-noise`` gives its own loop);
 - ``fall``: the fall check never stops;
 - ``runtime``: the policy's own loop (:class:`~sim2real.deploy.rig.own_loop.OwnLoop`: the true
-  state, no estimate, guard or stop) on the same plant and tile.
+  state, no estimate, guard or stop) on the same plant and tile (with ``noisy_truth_obs``: the
+  noise on its truth; with ``ramp``: after deploy-run's start and first tick);
+- ``heavy_calves`` (an experiment): the PD barrier judges every knee (``*calf*``, ``*knee*``)
+  with ``INERTIA_SPREAD`` times its least inertia.
 
-Printed per run: crossed (and when), x reached, the stop or fall (time, cause), the exit code
-deploy-run would return, the true hard-limit ticks per joint; then the crossings per tile.
+Printed per run: crossed (and when, s walked), x reached, the stop or fall (time, cause), the
+exit code deploy-run would return, the true hard-violation ticks (per joint for the hard limit)
+and each joint's deepest crossing (rad); then the crossings per tile.
 """
 
 from __future__ import annotations
@@ -43,7 +53,7 @@ from sim2real.deploy.core.modes import RUNNING
 CROSSED_X = 4.0  # m, bench.himloco_terrain_loop's
 STAGES = (
     "guard", "pd_barrier", "hard_stop", "truth_obs", "noisy_truth_obs", "fall", "runtime", "ramp",
-    "heavy_calves", "still_loaded_heavy",
+    "heavy_calves",
 )  # fmt: skip
 
 
@@ -77,29 +87,6 @@ def _switch_off(rig, stages: set[str], seed: int = 0) -> None:
             return got
 
         guard.filter = no_barrier
-    if "still_loaded_heavy" in stages:  # an experiment: the numpy reference guard, whose
-        # barrier judges a loaded joint at rest or moving away with the heavier inertia only
-        from sim2real.deploy.safety import pd_barrier as pb
-        from sim2real.deploy.safety.reference import ReferenceGuard
-
-        def barrier_np(t, q, v, bound, effort, d, c, loaded):
-            hi = np.maximum(bound, q)
-            r = pb._barrier_one_np(t, q, v, hi, effort, d, c, c[pb.INV_INERTIA], True)
-            heavy = pb._barrier_one_np(t, q, v, hi, effort, d, c, c[pb.INV_HEAVY], True)
-            toward = np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
-            return np.where(loaded & (v <= 0.0), heavy, toward)
-
-        pb._barrier_np = barrier_np
-        ref = ReferenceGuard(rig.robot, rt.envs, "position")
-        ref.reset(rt.state.q)
-
-        def ref_filter(target, state, out=None, commanded_position=None):
-            got = ref.filter(target, state, out=out)
-            guard.count_matrix[:] = ref.count_matrix
-            guard.hard_violation[:] = ref.hard_violation
-            return got
-
-        guard.filter = ref_filter
     if "heavy_calves" in stages:  # the barrier judges the knees 3x heavier (an experiment)
         from sim2real.deploy.safety import pd_barrier as pb
 
@@ -219,11 +206,8 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
     out["depth"] = {
         k: round(v["depth_rad"], 4) for k, v in report["violations"]["hard_limit_joints"].items()
     }
-    out["interventions"] = (
-        {k: v for k, v in report["interventions"].items() if v}
-        if isinstance(report.get("interventions"), dict)
-        else report.get("interventions")
-    )
+    checks = report["interventions"]["checks"]
+    out["interventions"] = {k: c["count"] for k, c in checks.items() if c["count"]}
     backend.close()
     return out
 
@@ -342,7 +326,8 @@ def main(argv: list[str] | None = None) -> int:
             when = f"crossed at {r['t_s']:.2f} s" if r["crossed"] else "not crossed"
             print(
                 f"  {tile} seed {seed}: {when}, x {r['x_m']:.2f} m, {r['stop'] or 'no stop'}, "
-                f"exit {r['exit']}, hard ticks {r['hard']}, depth {r.get('depth')}",
+                f"exit {r['exit']}, hard ticks {r['hard']}, depth {r.get('depth')}, "
+                f"interventions {r.get('interventions')}",
                 flush=True,
             )
         n = sum(r["crossed"] for r in runs)

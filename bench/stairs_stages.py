@@ -1,43 +1,28 @@
 """``deploy-run --terrain`` runs judged as :mod:`bench.himloco_terrain_loop` judges its own loop
-(a crossing: the true base 4 m along x from the tile's centre, its rim, before a fall or a stop),
-with the runtime's stages switched off one at a time: where does our runtime stall on a tile the
-policy's own loop crosses?
+(the true base 4 m along x, the tile's rim, before a fall or a stop), with the runtime's stages
+switched off one at a time: where does our runtime stall on a tile the own loop crosses?
 
 ``python -m bench.stairs_stages --robot ROBOT_DIR --policy POLICY.onnx --tile stairs_up:0.13
 --seeds 0-9 [--seconds 20] [--command 0.5,0,0] [--off STAGE[,STAGE]] [--heading-hold 0.5]
 [--stand-max S] [--whole]``
 
-``--seconds`` are walked (RUNNING, from the command; ``--whole``: deploy-run's ``--duration``,
-its start included); ``--stand-max S``: each seed stands U(0, S) s before its command, drawn as
-:func:`bench.himloco_terrain_loop.start_delay` draws it (the gait's phase at the first step is
-the start's: docs/soak.md, "The first-step stall").
+Each run is deploy-run's (``--backend sim --terrain TILE --seed S``: its rig, backend and exit
+code, built with its own functions), ``--seconds`` walked from the command (``--whole``: its
+``--duration``, the start included); ``--stand-max S``: each seed stands U(0, S) s first, as
+:func:`bench.himloco_terrain_loop.start_delay` draws it (docs/soak.md, "The first-step
+stall"). ``--off`` (evaluation switches, no deploy-run option): ``guard`` (the filter and the
+motion check pass everything), ``pd_barrier`` (its changes undone), ``hard_stop`` (counted,
+never stopping: :meth:`SafetyGuard.set_stopping`), ``truth_obs`` (the policy observes the
+plant's true joints, gyro and gravity), ``noisy_truth_obs`` (the same with the robot's white
+sensor noise, drawn by seed, as the own loop's ``--sensor-noise``), ``fall`` (the fall check
+never stops), ``runtime`` (the policy's own loop,
+:class:`~sim2real.deploy.rig.own_loop.OwnLoop`, on the same plant; with ``noisy_truth_obs`` its
+truth noisy, with ``ramp`` after deploy-run's start and first tick), ``heavy_calves`` (an
+experiment: the barrier judges every knee with ``INERTIA_SPREAD`` times its least inertia).
 
-Each run is ``deploy-run --backend sim --robot ROBOT --policy POLICY --terrain TILE --command C
---duration SECONDS --seed S`` built with deploy-run's own functions (the same rig, backend and
-exit code), then run to its end while the true base is watched. ``--off`` (comma-separated, the
-stages an evaluation may switch off; none of them is a deploy-run option):
-
-- ``guard``: the guard's filter returns the policy's target unchanged (no PD barrier, no
-  hard-limit stop) and its motion check passes the command through;
-- ``pd_barrier``: the guard runs, its PD barrier's changes undone (an env whose barrier
-  count moved gets the target it was given; the barrier only changes PD targets);
-- ``hard_stop``: the guard's hard-limit rule counts but never stops
-  (:meth:`SafetyGuard.set_stopping`);
-- ``truth_obs``: the policy observes the plant's true joints and base (gyro, gravity), not the
-  estimate (the guard and fall check still read the estimate);
-- ``noisy_truth_obs``: ``truth_obs`` with the robot's white sensor noise on it, drawn by seed
-  (encoder, joint speed, gyro, the attitude's tilt: what :mod:`bench.himloco_terrain_loop`
-  ``--sensor-noise`` gives its own loop);
-- ``fall``: the fall check never stops;
-- ``runtime``: the policy's own loop (:class:`~sim2real.deploy.rig.own_loop.OwnLoop`: the true
-  state, no estimate, guard or stop) on the same plant and tile (with ``noisy_truth_obs``: the
-  noise on its truth; with ``ramp``: after deploy-run's start and first tick);
-- ``heavy_calves`` (an experiment): the PD barrier judges every knee (``*calf*``, ``*knee*``)
-  with ``INERTIA_SPREAD`` times its least inertia.
-
-Printed per run: crossed (and when, s walked), x reached, the stop or fall (time, cause), the
-exit code deploy-run would return, the true hard-violation ticks (per joint for the hard limit)
-and each joint's deepest crossing (rad); then the crossings per tile.
+Printed per run: crossed (when, s walked), x reached, the stop or fall, deploy-run's exit code,
+the hard-violation ticks, each joint's deepest crossing (rad), the interventions per check;
+then the crossings per tile.
 """
 
 from __future__ import annotations

@@ -4,33 +4,29 @@ A robot whose drives run a PD law on a position target (the PD joints of its kin
 :class:`~sim2real.deploy.kinds.targets.DriveTargets`: the legged robots') asks for torque with
 its targets: ``tau = kp (target - q) - kd dq``, saturated by the drive. A target past the
 joint's range is such a request (legged_gym, Isaac Lab and mjlab train without any bound on
-them), and the drive takes it (a Unitree motor clamps no target: ``[position_target]`` of its
-motor table). So the target passes unchanged unless its consequence is unsafe: the joint's
-motion over the next control period, predicted per joint (a control-barrier-function-style
-safety filter, one dimension a joint): the drive's PD law at every physics substep, its torque
-saturated by the effort limit (derated when hot) and the motor's torque-speed line
-(:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia (its
-effective inertia ``1 / (M^-1)_jj``, the other joints free, from Pinocchio's mass matrix, legs in
-the air, over the home pose and ``INERTIA_POSES`` seeded poses: :func:`least_inertia`), and
-for a joint on a loaded foot's chain moving toward the limit also ``INERTIA_SPREAD`` times it,
-the target safe under both (a loaded joint whose motion toward the limit drives its foot into
-the ground, :func:`pressing_joints`, with ``INERTIA_SPREAD`` times it alone: its push lifts the
-body, not the leg; a Go2's knee extending to climb a step); the gravity torque toward the
-limit tested at the estimate (:func:`barrier_rows`: the base's estimated tilt, plus
-``SLACK_SHARE`` of the joint's all-pose bound
-:func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit Euler
-from the estimate ``(q, dq)``.
+them), and the drive takes it (a Unitree motor clamps no target). So the target passes
+unchanged unless its consequence is unsafe: the joint's motion over the next control period,
+predicted per joint (a control-barrier-function-style filter): the drive's PD law at every
+physics substep, its torque saturated by the (derated) effort limit and the motor's
+torque-speed line; the joint's least inertia (:func:`~sim2real.deploy.safety.leg_model.
+least_inertia`, legs in the air), and for a joint on a loaded foot's chain moving toward the
+limit also ``INERTIA_SPREAD`` times it, the target safe under both (a loaded joint whose motion
+toward the limit drives its foot into the ground, :func:`~sim2real.deploy.safety.leg_model.
+pressing_joints`, with ``INERTIA_SPREAD`` times it alone: its push lifts the body, as a Go2's
+knee extending to climb a step); the gravity torque toward the limit at the estimate
+(:func:`barrier_rows`: the estimated tilt, plus ``SLACK_SHARE`` of the all-pose bound, at most
+that bound); semi-implicit Euler from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
 before it with ``BRAKE_SHARE`` of its drive's braking (the effort limit less that gravity
 torque): ``dq > sqrt(2 a_brake room)``. Then the target is changed as little as makes the
-prediction safe (``BISECTIONS`` halvings between it and a target braking with the whole effort
-find the end of the safe half-line). Each changed env and tick counts once (``pd_barrier``).
-The lower limit is the upper one mirrored (``q, target, dq -> -q, -target, -dq``). Arms and
-servos whose firmware clamps targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.
-limits`). Its numpy reference and compiled function do the same operations in the same order
-(tests/test_pd_barrier.py). Units: rad, rad/s, N m, kg m^2, s.
+prediction safe (``BISECTIONS`` halvings between it and a target braking with the whole
+effort). Each changed env and tick counts once (``pd_barrier``). The lower limit is the upper
+one mirrored (``q, target, dq -> -q, -target, -dq``). Arms and servos whose firmware clamps
+targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.limits`). Its numpy reference
+and compiled function do the same operations in the same order (tests/test_pd_barrier.py).
+Units: rad, rad/s, N m, kg m^2, s.
 """
 
 from __future__ import annotations
@@ -45,7 +41,14 @@ import pinocchio as pin
 from sim2real.deploy.kernels import np_max, np_min
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.safety.check import CLAMP, EFFORT, FIRED, POSITION, GuardCheck
-from sim2real.robots.continuous import continuous_mask, sampling_bounds
+from sim2real.deploy.safety.leg_model import (  # noqa: F401 - the barrier's names for them
+    INERTIA_POSES,
+    PRESS_LEVER,
+    foot_chains,
+    least_inertia,
+    pressing_joints,
+)
+from sim2real.robots.continuous import continuous_mask
 from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 
 #: Rows of the check's constants (n,) each: the PD gains (N m/rad, N m s/rad), 1 / inertia
@@ -98,17 +101,8 @@ SLACK_SHARE = 0.25
 #: braking). Our choice: 3, above the 1.6-2.7 fitted at a G1 ankle's lift-off
 #: (docs/measurements.md).
 INERTIA_SPREAD = 3.0
-#: m/rad: how far a joint's motion must move its foot down (the base frame's -z, at the home
-#: pose) per radian toward a limit to count as pressing the foot into the ground
-#: (:func:`pressing_joints`). Our choice: 0.05, under a Go2 knee's 0.10-0.14 (its extension
-#: pushes a foot in stance into the ground: climbing a step, the policy's own loop holds its
-#: rear knees there) and above a humanoid's knee's 0.03 and its ankle roll's 0 (a foot rolling
-#: on its edge as it lifts off: the least inertia's case).
-PRESS_LEVER = 0.05
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32
-#: Seeded poses, uniform within the joints' ranges, over which the least inertia is taken.
-INERTIA_POSES = 63
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -209,26 +203,6 @@ def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
             changed = True
             out[e, j] = r
     return FIRED if changed else 0
-
-
-def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarray:
-    """(n,) kg m^2: each joint's smallest effective inertia ``1 / (M^-1)_jj`` (``M``: the
-    mass matrix, armature included, of the robot's fixed-base model: Pinocchio's CRBA, legs in
-    the air) over its home pose and ``poses`` seeded poses uniform within the joints' ranges.
-    ``tau / (M^-1)_jj`` is the joint's acceleration under a torque ``tau`` with the other
-    joints free; the diagonal ``M_jj`` (the other joints locked) is up to 11 x it (an H1-2's
-    hip roll) and under-predicts a PD target's motion over a control period
-    (docs/measurements.md)."""
-    model = robot.fixed_base_model
-    data = model.createData()
-    rng = np.random.default_rng(seed)
-    lo, hi = sampling_bounds(robot.position_lower, robot.position_upper)  # a wheel: one turn
-    least = np.full(robot.n_joints, np.inf)
-    for q in [robot.home, *(rng.uniform(lo, hi) for _ in range(poses))]:
-        m = pin.crba(model, data, np.asarray(q, dtype=np.float64))
-        m = np.triu(m) + np.triu(m, 1).T  # CRBA fills the upper triangle
-        least = np.minimum(least, 1.0 / np.diag(np.linalg.inv(m)))
-    return least
 
 
 def pd_barrier_constants(guard) -> np.ndarray:
@@ -388,44 +362,6 @@ def _rows_env(torque, c, contact, chains, e: int) -> None:
         for f in range(chains.shape[0]):
             total += contact[e, f] * chains[f, j]
         loaded[j] = total
-
-
-def pressing_joints(robot) -> np.ndarray:
-    """(2, n) float64: 1.0 where moving joint ``j`` toward its upper (row 0) or lower (row 1)
-    limit moves the foot whose chain holds it down by more than ``PRESS_LEVER`` m per radian
-    (the foot frame's Jacobian along the base's z axis at the home pose, the fixed-base model's:
-    a foot in stance is driven into the ground, the body lifted); zeros for an arm. A Go2's
-    knees press toward their upper limit (extension), its hips' abduction toward one limit each;
-    a humanoid's ankle roll does not (its foot frame sits on the roll axis)."""
-    model = robot.fixed_base_model
-    data = model.createData()
-    q = np.asarray(robot.home, dtype=np.float64)
-    pin.computeJointJacobians(model, data, q)
-    pin.framesForwardKinematics(model, data, q)
-    out = np.zeros((2, robot.n_joints))
-    chains = foot_chains(robot)
-    for f, frame in enumerate(robot.foot_frame_ids):
-        z = pin.getFrameJacobian(model, data, frame, pin.LOCAL_WORLD_ALIGNED)[2]
-        for j, name in enumerate(robot.joint_names):
-            if chains[f, j] > 0.0:
-                dz = z[model.joints[model.getJointId(name)].idx_v]
-                out[0, j] = max(out[0, j], float(dz < -PRESS_LEVER))
-                out[1, j] = max(out[1, j], float(dz > PRESS_LEVER))
-    return out
-
-
-def foot_chains(robot) -> np.ndarray:
-    """(n_feet, n) float64: 1.0 where joint ``j`` is on the chain from the base to foot ``f``
-    (Pinocchio's ``supports`` of the foot frame's parent joint); (0, n) for an arm."""
-    model = robot.pin_model
-    chains = np.zeros((robot.n_feet, robot.n_joints))
-    index = {name: j for j, name in enumerate(robot.joint_names)}
-    for f, frame in enumerate(robot.foot_frame_ids):
-        for joint in model.supports[model.frames[frame].parentJoint]:
-            j = index.get(model.names[joint])
-            if j is not None:
-                chains[f, j] = 1.0
-    return chains
 
 
 def _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i) -> np.ndarray:

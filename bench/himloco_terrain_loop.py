@@ -142,6 +142,7 @@ def run(
     cross: bool = True,
     key: str = GO2_HIMLOCO,
     robot=None,
+    stand: float = 0.0,
 ):
     """One run on ``tile`` (``--terrain`` syntax, or a
     :class:`~sim2real.eval.world.terrain.TerrainDraw`; None: the plane): a dict of whether it
@@ -158,7 +159,9 @@ def run(
     ``<robot>/<policy>`` (:mod:`bench.rl_sar_robot`: its folder in ``rl_sar``, its MJCF in
     ``unitree_mujoco``); ``robot``: the import it is compared with (default ``pushes``' robot),
     whose base body, feet and joints its MJCF must have and whose standing height judges the
-    fall (without one: ``STANDING_HEIGHT``).
+    fall (without one: ``STANDING_HEIGHT``). ``stand``: s the policy runs with a zero command
+    after the get-up before the command is given (its gait's phase at the tile's first step;
+    ``seconds`` and the crossing's time count from the command).
 
     Raises:
         bench.rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
@@ -219,7 +222,8 @@ def run(
         mujoco.mj_step(model, data)
     command = np.array([vx, 0.0, 0.0])
     low = FALL_SHARE * standing
-    steps = int(seconds / dt)
+    asked, stand_steps = command.copy(), int(round(stand / dt))
+    steps = int(seconds / dt) + stand_steps
     out = {"tile": tile, "crossed": False, "fell": False, "t_s": seconds}
     target = default.copy()
     # our guard's hard-limit rule on this loop's joint readings, counted, never acted on
@@ -236,6 +240,7 @@ def run(
         schedule = DomainPushes([seed], pushes[1], period)
         walk, base_pushes = _Walk(), SimDisturbances(pushes[0], [model], [data])
     for k in range(steps):
+        command = asked * (k >= stand_steps)
         if k % decimation == 0:
             q, dq = q_dq()
             over = np.maximum(lower - q, q - upper).max()
@@ -288,10 +293,10 @@ def run(
         up = 1 - 2 * (data.qpos[4] ** 2 + data.qpos[5] ** 2)  # the base z axis' world z
         floor = 0.0 if ground is None else float(ground.height_at(base[0], base[1]))
         if math.acos(max(-1.0, min(1.0, up))) > FALL_TILT or base[2] - floor < low:
-            out.update(fell=True, t_s=(k + 1) * dt)
+            out.update(fell=True, t_s=(k + 1 - stand_steps) * dt)
             break
         if cross and base[0] >= CROSSED_X:
-            out.update(crossed=True, t_s=(k + 1) * dt)
+            out.update(crossed=True, t_s=(k + 1 - stand_steps) * dt)
             break
         if schedule is not None and (k + 1) % decimation == 0:  # a policy tick's end: its push
             walk.ticks = (k + 1) // decimation
@@ -300,6 +305,14 @@ def run(
     if schedule is not None:
         out["push_times"] = list(schedule.times[0])
     return out
+
+
+def start_delay(seed: int, stand_max: float) -> float:
+    """s a run of ``seed`` stands before its command (``--stand-max``): U(0, ``stand_max``)
+    from ``numpy.random.default_rng([seed, 3])``; 0 without one."""
+    if stand_max <= 0.0:
+        return 0.0
+    return float(np.random.default_rng([seed, 3]).uniform(0.0, stand_max))
 
 
 def main(argv=None) -> None:
@@ -316,6 +329,10 @@ def main(argv=None) -> None:
     p.add_argument("--timestep", type=float, help="s, the physics step (default rl_sar's dt)")
     p.add_argument("--plant-of", type=Path, help="an imported robot: its integrator, joints")
     p.add_argument("--policy", default=GO2_HIMLOCO, help="rl_sar's key <robot>/<policy>")
+    p.add_argument(
+        "--stand-max", type=float, default=0.0,
+        help="s: each seed stands U(0, S) s (zero command) after the get-up before walking",
+    )  # fmt: skip
     args = p.parse_args(argv)
     if args.sensor_noise and args.motors is None:
         p.error("--sensor-noise needs --motors (the robot whose sensors' noise it draws)")
@@ -333,6 +350,7 @@ def main(argv=None) -> None:
                 args.timestep,
                 args.plant_of,
                 key=args.policy,
+                stand=start_delay(s, args.stand_max),
             )  # fmt: skip
             for s in range(args.first_seed, args.first_seed + args.seeds)
         ]

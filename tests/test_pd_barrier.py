@@ -49,6 +49,40 @@ def test_a_pd_target_past_the_range_passes_when_its_motion_is_safe(go2, guard_ty
 
 
 @GUARDS
+def test_a_loaded_knee_pushing_its_foot_into_the_ground_is_judged_as_lifting_the_body(
+    go2, guard_type
+):
+    """A Go2 rear knee climbing a step (stairs up, HIMLoco's policy): its foot in stance, the
+    knee at rest 0.15 rad short of its extension stop, asked for a target 0.3 rad past it (the
+    push that lifts the body onto the step). Extension drives that foot into the ground, so on
+    a loaded foot the barrier judges the knee with the heavier inertia only: the target passes
+    further than with the leg in the air (the least inertia, where it must hold the knee off the
+    stop), and still off the stop in a plant whose knee is that heavy. A humanoid's ankle roll,
+    whose foot rolls on its edge as it lifts off, presses nothing: judged as before."""
+    press = pb.pressing_joints(go2)
+    knees = [j for j, name in enumerate(go2.joint_names) if name.endswith("calf_joint")]
+    assert press[0, knees].all() and not press[1, knees].any()  # extension: the upper limit
+    assert not pb.pressing_joints(load_robot("h1_2")).any()
+    knee = go2.joint_names.index("RR_calf_joint")
+    q = go2.home.copy()
+    q[knee] = go2.position_upper[knee] - 0.15
+    target = np.tile(q, (1, 1))
+    target[0, knee] = go2.position_upper[knee] + 0.3
+    outs = {}
+    for loaded in (False, True):
+        guard = guard_type(go2, 1, "position")
+        state = _state(go2, 1, q)
+        state.foot_contact[:] = 1.0 if loaded else 0.0
+        guard.reset(state.q)
+        outs[loaded] = guard.filter(target, state, out=np.empty_like(target))[0, knee]
+    assert outs[False] < target[0, knee]  # in the air: held off the stop
+    assert outs[True] > outs[False]  # loaded: the push lifts the body, judged so
+    extra = (pb.INERTIA_SPREAD - 1.0) * pb.least_inertia(go2)[knee]
+    peak = _swing_peak(go2, q, np.zeros(go2.n_joints), knee, outs[True], armature=extra)
+    assert peak < go2.position_upper[knee], peak
+
+
+@GUARDS
 def test_a_pd_target_that_would_reach_the_hard_limit_is_changed_minimally(go2, guard_type):
     """The hip roll 0.08 rad short of its upper limit and swinging toward it at 6 rad/s, asked
     for a target past the range: under its drive's PD law it would reach the stop within the

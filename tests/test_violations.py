@@ -64,6 +64,69 @@ def test_a_true_hard_limit_crossing_is_a_violation_but_a_guard_clamp_is_not(arm3
     assert interventions.any.tolist() == [1, 1]  # only the clamp of the first tick
 
 
+def test_the_monitor_keeps_each_joints_ticks_and_deepest_crossing_up_and_lying_down(arm3):
+    backend = SimBackend(arm3, mode="velocity", envs=2)
+    monitor = ViolationMonitor(arm3, 2)
+    names = arm3.joint_names
+    q = arm3.home.copy()
+    for past, down in ((0.03, False), (0.08, False), (0.05, False), (0.2, True)):
+        q[1] = arm3.position_lower[1] - past  # env 1's elbow below its hard limit
+        place(backend, 1, q)
+        monitor.update(backend, down=np.array([False, down]))
+    q[2] = arm3.position_upper[2] + 0.01  # and its wrist above, once, while up
+    q[1] = arm3.home[1]
+    place(backend, 1, q)
+    monitor.update(backend, down=np.array([False, False]))
+    depths = monitor.hard_limit_depths(1)
+    assert list(depths) == [names[1], names[2]]  # most ticks first
+    assert depths[names[1]]["ticks"] == 3 and depths[names[2]]["ticks"] == 1
+    assert depths[names[1]]["depth_rad"] == pytest.approx(0.08, abs=1e-9)  # the deepest, up
+    assert depths[names[2]]["depth_rad"] == pytest.approx(0.01, abs=1e-9)
+    down = monitor.hard_limit_depths(1, down=True)
+    assert down == {names[1]: {"ticks": 1, "depth_rad": pytest.approx(0.2, abs=1e-9)}}
+    assert monitor.hard_limit_depths(0) == {}
+    assert monitor.hard_limit_depths() == depths  # every env's: env 0 never crossed
+    # a checkpoint keeps them
+    again = ViolationMonitor(arm3, 2)
+    again.load_state_dict(monitor.state_dict())
+    assert again.hard_limit_depths(1) == depths
+
+
+def test_deploy_run_names_the_joint_how_deep_and_how_long_when_it_exits_1(tmp_path, arm3, capsys):
+    """A run whose true joint crosses its hard limit (a cable pulling the arm) exits 1 and says
+    which joint, for how many ticks and how far past (rad) in its summary and its report."""
+    import json
+
+    from sim2real.deploy.cli.deploy_run import EXIT_HARD_VIOLATION, deploy_run_main
+    from tests.runtime_fixtures import adversarial_onnx
+
+    policy = adversarial_onnx(tmp_path, arm3, "position")
+    report = tmp_path / "run.json"
+    argv = ["--robot", "arm3", "--policy", str(policy), "--duration", "3"]
+    argv += ["--inject", "cable=200@1.0:1.0", "--report", str(report)]
+    assert deploy_run_main(argv) == EXIT_HARD_VIOLATION
+    out = capsys.readouterr().out
+    r = json.loads(report.read_text())
+    joints = r["violations"]["hard_limit_joints"]
+    assert r["hard_violations"]["hard_limit"] > 0 and joints
+    # each joint's ticks are at most the run's hard-limit ticks, and one joint makes them all
+    assert max(j["ticks"] for j in joints.values()) == r["hard_violations"]["hard_limit"]
+    for name, j in joints.items():
+        assert name in arm3.joint_names and j["depth_rad"] > 0.0
+        line = (
+            f"hard_limit: {name} past its hard limit on {j['ticks']} ticks, at most "
+            f"{j['depth_rad']:.4f} rad"
+        )
+        assert line in out, out
+    # the joints above their velocity limit too: the cable swings the arm past it
+    assert r["hard_violations"]["velocity"] > 0
+    speeds = r["violations"]["velocity_joints"]
+    assert max(j["ticks"] for j in speeds.values()) <= r["hard_violations"]["velocity"]
+    for name, j in speeds.items():
+        assert j["excess"] > 0.0
+        assert f"velocity: {name} above its velocity limit on {j['ticks']} ticks" in out, out
+
+
 def test_each_violation_type_counts_once_per_tick_from_the_true_state(arm3):
     backend = SimBackend(arm3, mode="velocity", envs=4)
     monitor = ViolationMonitor(arm3, 4)

@@ -9,6 +9,8 @@ before.
 
 from __future__ import annotations
 
+import math
+
 #: deg of heading change the commands did not ask for past which the summary flags a drift (our
 #: choice: a straight 20 s walk that turns 30 deg ends 5 m off a 10 m line).
 HEADING_DRIFT_DEG = 30.0
@@ -188,11 +190,40 @@ def _print_violations(r: dict) -> None:
         if hard:
             kinds = ", ".join(f"{k} {n}" for k, n in hard.items())
             print(f"  HARD VIOLATIONS   {kinds} ticks (true state): the run fails (exit code 1)")
+            for line in hard_violation_lines(v):
+                print(f"    {line}")
     else:
         print(
             "  violations        n/a (no ground truth on hardware; the guard's hard-limit "
             f"stops: {r['faults']['by_cause']['hard_limit']})"
         )
+
+
+def hard_violation_lines(v: dict) -> list[str]:
+    """What a run's hard violations were, one line each (``deploy-run``'s summary under HARD
+    VIOLATIONS): every joint past its hard limit with its ticks and how far past it was at most
+    (rad and degrees; up, then lying down after a stop), every joint above its velocity or
+    effort limit with its ticks and how far above (rad/s, N m), and every self-collision pair
+    that touched with its ticks; from the report's ``violations`` (:meth:`Rig.violation_report
+    <sim2real.deploy.rig.rig.Rig.violation_report>`). Empty where the report holds none of them
+    (one written before they were kept)."""
+    lines = []
+    for key, where in (("hard_limit_joints", ""), ("hard_limit_joints_while_down", " lying down")):
+        for joint, j in (v.get(key) or {}).items():
+            depth = j["depth_rad"]
+            lines.append(
+                f"hard_limit{where}: {joint} past its hard limit on {j['ticks']} ticks, at most "
+                f"{depth:.4f} rad ({math.degrees(depth):.2f} deg) past it"
+            )
+    for kind, unit in (("velocity", "rad/s"), ("effort", "N m")):
+        for joint, j in (v.get(f"{kind}_joints") or {}).items():
+            lines.append(
+                f"{kind}: {joint} above its {kind} limit on {j['ticks']} ticks, at most "
+                f"{j['excess']:.3g} {unit} above it"
+            )
+    for pair, ticks in (v.get("self_collision_pairs") or {}).items():
+        lines.append(f"self_collision: {pair.replace('|', ' and ')} in contact on {ticks} ticks")
+    return lines
 
 
 def _print_interventions(r: dict) -> None:

@@ -36,7 +36,7 @@ import numpy as np
 
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.monitors import kernel as mk
-from sim2real.deploy.monitors.violations import MonitorState
+from sim2real.deploy.monitors.monitor_state import MonitorState
 from sim2real.deploy.safety.checks import CHECKS as GUARD_CHECKS
 
 #: The smoother's checks (its counters of :meth:`InterventionMonitor.__init__`).

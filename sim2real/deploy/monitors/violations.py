@@ -34,6 +34,7 @@ import pinocchio as pin
 
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.monitors import kernel as mk
+from sim2real.deploy.monitors.monitor_state import MonitorState
 from sim2real.deploy.safety.collision import collision_model, collision_query
 from sim2real.deploy.safety.guard import SCREEN_MARGIN
 from sim2real.robots import Robot
@@ -52,49 +53,6 @@ _SCREEN_SHRINK = 1e-12
 #: (:meth:`ViolationMonitor._in_collision`): the distances cost as much as the contact query
 #: and spare no check while the screen's bound trips every tick.
 DISTANCE_REFRESH = 16
-
-
-class MonitorState:
-    """``state_dict`` / ``load_state_dict`` of a per-env tick counter (the soak's checkpoints).
-
-    A monitor gives ``_arrays()`` (name -> live array with a leading env axis), ``_tick_count``
-    ((1,) int64, what :attr:`ticks` reads) and ``_state_name`` (for error messages); its state
-    is those arrays (copies) and ``ticks``.
-    """
-
-    _state_name = "monitor"
-    _tick_count: np.ndarray
-
-    @property
-    def ticks(self) -> int:
-        """Ticks observed (calls of ``update``, or of a compiled tick that counts for it)."""
-        return int(self._tick_count[0])
-
-    @ticks.setter
-    def ticks(self, value: int) -> None:
-        self._tick_count[0] = value
-
-    def _arrays(self) -> dict[str, np.ndarray]:
-        raise NotImplementedError
-
-    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        """The monitor's arrays (copies, see the class docstring), each with its leading env
-        axis of length envs, or 1 for one env ``env`` (a soak session's checkpoint), and
-        ``ticks`` (1,) int64."""
-        index = slice(None) if env is None else slice(env, env + 1)
-        out = {k: v[index].copy() for k, v in self._arrays().items()}
-        out["ticks"] = np.array([self.ticks], dtype=np.int64)
-        return out
-
-    def load_state_dict(self, state: dict[str, np.ndarray], env: int | None = None) -> None:
-        """Inverse of :meth:`state_dict` (of all envs, or of env ``env``).
-
-        Raises:
-            ValueError: a missing field, or one whose shape differs (named, with the expected
-                shape).
-        """
-        index = slice(None) if env is None else slice(env, env + 1)
-        self.ticks = load_fields(self._arrays(), state, index, self._state_name)
 
 
 class ViolationMonitor(MonitorState):
@@ -117,6 +75,12 @@ class ViolationMonitor(MonitorState):
         pair_names: (pairs,) ``"geom_a|geom_b"``, the guard's collision pairs in its order.
         hard_joint_ticks: (envs, n) int64, ticks on which each joint was beyond its hard limit
             while the env was up: which joints make the ``hard_limit`` ticks of ``counts``.
+        hard_joint_depth: (envs, n) rad, how far past its hard limit each joint's true position
+            ever was while the env was up (0: never past): how deep the ``hard_limit`` ticks went.
+        down_hard_joint_ticks, down_hard_joint_depth: the same, of the ticks the env was down.
+        speed_joint_ticks, speed_joint_excess: (envs, n) int64 and rad/s, ticks on which each
+            joint's true speed was above its velocity limit and by how much at most (up or
+            down); effort_joint_ticks, effort_joint_excess: the same of its torque (N m).
         any: (envs,) int64, ticks with at least one violation of any type.
         down_counts, down_any: the same, of the ticks on which the env was *down*: a legged
             robot lying damped after a stop (``down`` of :meth:`update`). What a fallen robot's
@@ -196,6 +160,13 @@ class ViolationMonitor(MonitorState):
         self.reference_ticks = np.zeros(envs, dtype=np.int64)
         self.reference_pair_ticks = np.zeros((envs, len(self.pair_names)), dtype=np.int64)
         self.hard_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.hard_joint_depth = np.zeros((envs, n))
+        self.down_hard_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.down_hard_joint_depth = np.zeros((envs, n))
+        self.speed_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.speed_joint_excess = np.zeros((envs, n))
+        self.effort_joint_ticks = np.zeros((envs, n), dtype=np.int64)
+        self.effort_joint_excess = np.zeros((envs, n))
         # the collision screen (compiled path): no pair can touch while its distance computed at
         # checked_q exceeds its own bound on how far the joints moved since
         # (sim2real.robots.chain_bounds.collision_pair_weights; an exact screen, as the guard's)
@@ -398,6 +369,18 @@ class ViolationMonitor(MonitorState):
         down = self._down
         up = ~down  # only on a tick something was flagged
         self.hard_joint_ticks += beyond & up[:, None]
+        self.down_hard_joint_ticks += beyond & down[:, None]
+        if beyond.any():  # rad past the limit, the deepest kept (up and down apart)
+            depth = np.maximum(self._lower - q, q - self._upper)
+            for rows, deepest in ((up, self.hard_joint_depth), (down, self.down_hard_joint_depth)):
+                np.maximum(deepest, np.where(beyond & rows[:, None], depth, 0.0), out=deepest)
+        for value, limit, ticks, excess in (
+            (dq, self._velocity, self.speed_joint_ticks, self.speed_joint_excess),
+            (tau, self._effort, self.effort_joint_ticks, self.effort_joint_excess),
+        ):
+            above = np.abs(value) - limit
+            ticks += above > 0.0
+            np.maximum(excess, np.where(above > 0.0, above, 0.0), out=excess)
         for name, flags in tests:
             counts[name] += flags & up
             self.down_counts[name] += flags & down
@@ -412,6 +395,40 @@ class ViolationMonitor(MonitorState):
         order = np.argsort(-ticks, kind="stable")
         names = self.robot.joint_names
         return {names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
+
+    def joint_excess(self, kind: str) -> dict[str, dict]:
+        """Every env's joints above their ``kind`` (``"velocity"`` or ``"effort"``) limit, most
+        ticks first: ``{joint: {"ticks": int, "excess": float}}``, the ticks (summed) and how far
+        above the limit at most (rad/s or N m; up or lying down)."""
+        ticks, excess = {
+            "velocity": (self.speed_joint_ticks, self.speed_joint_excess),
+            "effort": (self.effort_joint_ticks, self.effort_joint_excess),
+        }[kind]
+        ticks, excess = ticks.sum(axis=0), excess.max(axis=0)
+        order = np.argsort(-ticks, kind="stable")
+        names = self.robot.joint_names
+        return {
+            names[k]: {"ticks": int(ticks[k]), "excess": float(excess[k])}
+            for k in order
+            if ticks[k] > 0
+        }
+
+    def hard_limit_depths(self, env: int | None = None, down: bool = False) -> dict[str, dict]:
+        """Each joint that was ever beyond its hard limit (while up; with ``down``, while lying
+        down after a stop), most ticks first: ``{joint: {"ticks": int, "depth_rad": float}}``,
+        its ticks past and how far past it was at most (rad), of env ``env`` (None: the ticks
+        summed and the deepest over every env)."""
+        ticks = self.down_hard_joint_ticks if down else self.hard_joint_ticks
+        depth = self.down_hard_joint_depth if down else self.hard_joint_depth
+        ticks = ticks.sum(axis=0) if env is None else ticks[env]
+        depth = depth.max(axis=0) if env is None else depth[env]
+        order = np.argsort(-ticks, kind="stable")
+        names = self.robot.joint_names
+        return {
+            names[k]: {"ticks": int(ticks[k]), "depth_rad": float(depth[k])}
+            for k in order
+            if ticks[k] > 0
+        }
 
     # ------------------------------------------------------------------ reading
     def totals(self, down: bool = False) -> dict[str, int]:
@@ -439,25 +456,11 @@ class ViolationMonitor(MonitorState):
         out["reference_ticks"] = self.reference_ticks
         out["reference_pair_ticks"] = self.reference_pair_ticks
         out["hard_joint_ticks"] = self.hard_joint_ticks
+        out["hard_joint_depth"] = self.hard_joint_depth
+        out["down/hard_joint_ticks"] = self.down_hard_joint_ticks
+        out["down/hard_joint_depth"] = self.down_hard_joint_depth
+        out["speed_joint_ticks"] = self.speed_joint_ticks
+        out["speed_joint_excess"] = self.speed_joint_excess
+        out["effort_joint_ticks"] = self.effort_joint_ticks
+        out["effort_joint_excess"] = self.effort_joint_excess
         return out
-
-
-def load_fields(targets: dict[str, np.ndarray], state: dict, index: slice, what: str) -> int:
-    """Write ``state`` (a monitor's ``state_dict``) into ``targets[index]`` after checking every
-    field (present, same shape) and ``state["ticks"]`` (shape (1,)); returns the ticks.
-
-    Raises:
-        ValueError: a missing field or a shape that differs (named, with the expected shape).
-    """
-    expected = {k: v[index].shape for k, v in targets.items()}
-    expected["ticks"] = (1,)
-    for key, shape in expected.items():
-        if key not in state:
-            raise ValueError(f"{what} state: field '{key}' is missing")
-        if np.shape(state[key]) != shape:
-            raise ValueError(
-                f"{what} state: field '{key}': expected shape {shape}, got {np.shape(state[key])}"
-            )
-    for key, target in targets.items():
-        target[index] = state[key]
-    return int(state["ticks"][0])

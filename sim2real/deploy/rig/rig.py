@@ -261,12 +261,27 @@ class Rig:
 
     def violation_report(self) -> dict | None:
         """The true state's violations (ticks by type, ``any``, ``while_down``: lying damped
-        after a stop); None without ground truth (hardware)."""
+        after a stop); None without ground truth (hardware). What the hard ones were:
+        ``hard_limit_joints`` (and ``hard_limit_joints_while_down``), each joint ever past its
+        hard limit with its ticks past and its deepest position past it (``{joint: {"ticks",
+        "depth_rad"}}``, every env's), ``velocity_joints`` and ``effort_joints`` (``{joint:
+        {"ticks", "excess"}}``, rad/s and N m above the limit at most), and
+        ``self_collision_pairs``, the collision pairs that touched while up (``{"geom_a|geom_b":
+        ticks}``, every env's)."""
         if self.violations is None:
             return None
         v = self.violations
         true, down = v.totals(), v.totals(down=True)
+        pairs: dict[str, int] = {}
+        for e in range(self.envs):
+            for pair, ticks in v.pair_counts(e).items():
+                pairs[pair] = pairs.get(pair, 0) + ticks
         return {
+            "hard_limit_joints": v.hard_limit_depths(),
+            "hard_limit_joints_while_down": v.hard_limit_depths(down=True),
+            "velocity_joints": v.joint_excess("velocity"),
+            "effort_joints": v.joint_excess("effort"),
+            "self_collision_pairs": dict(sorted(pairs.items(), key=lambda kv: -kv[1])),
             "reference_contact_ticks": int(v.reference_ticks.sum()),
             "reference_contact_pairs": v.reference_pair_counts(),
             "source": "true state (simulation ground truth)",

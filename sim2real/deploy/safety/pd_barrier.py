@@ -4,30 +4,29 @@ A robot whose drives run a PD law on a position target (the PD joints of its kin
 :class:`~sim2real.deploy.kinds.targets.DriveTargets`: the legged robots') asks for torque with
 its targets: ``tau = kp (target - q) - kd dq``, saturated by the drive. A target past the
 joint's range is such a request (legged_gym, Isaac Lab and mjlab train without any bound on
-them), and the drive takes it (a Unitree motor clamps no target: ``[position_target]`` of its
-motor table). So the target passes unchanged unless its consequence is unsafe: the joint's
-motion over the next control period, predicted per joint (a control-barrier-function-style
-safety filter, one dimension a joint): the drive's PD law at every physics substep, its torque
-saturated by the effort limit (derated when hot) and the motor's torque-speed line
-(:class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`); the joint's least inertia (its
-effective inertia ``1 / (M^-1)_jj``, the other joints free, from Pinocchio's mass matrix, legs in
-the air, over the home pose and ``INERTIA_POSES`` seeded poses: :func:`least_inertia`), and
-for a joint on a loaded foot's chain moving toward the limit also ``INERTIA_SPREAD`` times it,
-the target safe under both; the gravity torque toward the limit tested at the estimate
-(:func:`barrier_rows`: the base's estimated tilt, plus ``SLACK_SHARE`` of the joint's all-pose
-bound :func:`sim2real.robots.chain_bounds.motion_bounds`, at most that bound); semi-implicit
-Euler from the estimate ``(q, dq)``.
+them), and the drive takes it (a Unitree motor clamps no target). So the target passes
+unchanged unless its consequence is unsafe: the joint's motion over the next control period,
+predicted per joint (a control-barrier-function-style filter): the drive's PD law at every
+physics substep, its torque saturated by the (derated) effort limit and the motor's
+torque-speed line; the joint's least inertia (:func:`~sim2real.deploy.safety.leg_model.
+least_inertia`, legs in the air), and for a joint on a loaded foot's chain moving toward the
+limit also ``INERTIA_SPREAD`` times it, the target safe under both (a loaded joint whose motion
+toward the limit drives its foot into the ground, :func:`~sim2real.deploy.safety.leg_model.
+pressing_joints`, with ``INERTIA_SPREAD`` times it alone: its push lifts the body, as a Go2's
+knee extending to climb a step); the gravity torque toward the limit at the estimate
+(:func:`barrier_rows`: the estimated tilt, plus ``SLACK_SHARE`` of the all-pose bound, at most
+that bound); semi-implicit Euler from the estimate ``(q, dq)``.
 
 The prediction is unsafe when the joint passes the hard limit less a margin (``MARGIN_SHARE``
 of the soft band; or, already past it, goes farther), or ends the period too fast to stop
 before it with ``BRAKE_SHARE`` of its drive's braking (the effort limit less that gravity
 torque): ``dq > sqrt(2 a_brake room)``. Then the target is changed as little as makes the
-prediction safe (``BISECTIONS`` halvings between it and a target braking with the whole effort
-find the end of the safe half-line). Each changed env and tick counts once (``pd_barrier``).
-The lower limit is the upper one mirrored (``q, target, dq -> -q, -target, -dq``). Arms and
-servos whose firmware clamps targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.
-limits`). Its numpy reference and compiled function do the same operations in the same order
-(tests/test_pd_barrier.py). Units: rad, rad/s, N m, kg m^2, s.
+prediction safe (``BISECTIONS`` halvings between it and a target braking with the whole
+effort). Each changed env and tick counts once (``pd_barrier``). The lower limit is the upper
+one mirrored (``q, target, dq -> -q, -target, -dq``). Arms and servos whose firmware clamps
+targets keep the soft-limit clamp (:mod:`sim2real.deploy.safety.limits`). Its numpy reference
+and compiled function do the same operations in the same order (tests/test_pd_barrier.py).
+Units: rad, rad/s, N m, kg m^2, s.
 """
 
 from __future__ import annotations
@@ -42,7 +41,14 @@ import pinocchio as pin
 from sim2real.deploy.kernels import np_max, np_min
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.safety.check import CLAMP, EFFORT, FIRED, POSITION, GuardCheck
-from sim2real.robots.continuous import continuous_mask, sampling_bounds
+from sim2real.deploy.safety.leg_model import (  # noqa: F401 - the barrier's names for them
+    INERTIA_POSES,
+    PRESS_LEVER,
+    foot_chains,
+    least_inertia,
+    pressing_joints,
+)
+from sim2real.robots.continuous import continuous_mask
 from sim2real.robots.torque_speed import TorqueSpeedEnvelope
 
 #: Rows of the check's constants (n,) each: the PD gains (N m/rad, N m s/rad), 1 / inertia
@@ -62,7 +68,11 @@ BRAKE = 11
 SLACK = 12
 #: Row of 1 / (``INERTIA_SPREAD`` times the least inertia) (1/(kg m^2)): the heavier joint.
 INV_HEAVY = 13
-ROWS = 14
+#: Rows of 1.0 where a joint's motion toward its upper (``PRESS_UP``) or lower (``PRESS_DOWN``)
+#: limit drives its foot into the ground (:func:`pressing_joints`): on a loaded foot's chain it
+#: lifts the body, not the leg, and is judged with the heavier inertia only.
+PRESS_UP, PRESS_DOWN = 14, 15
+ROWS = 16
 #: Rows ``TOWARD + 2 e`` and ``TOWARD + 2 e + 1``: env ``e``'s gravity torque toward the upper
 #: and toward the lower limit over the next period (N m, :func:`barrier_rows`), after ``ROWS``;
 #: then, row ``TOWARD + 2 envs + e``: env ``e``'s joints on the chain of a foot in contact
@@ -93,8 +103,6 @@ SLACK_SHARE = 0.25
 INERTIA_SPREAD = 3.0
 #: Halvings of the bisection's bracket (its width, a few rad, to below 1e-9 rad).
 BISECTIONS = 32
-#: Seeded poses, uniform within the joints' ranges, over which the least inertia is taken.
-INERTIA_POSES = 63
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
@@ -154,14 +162,17 @@ def _barrier_one(t, q, v, hi, effort, d, j, own, inv_i, stuck) -> float:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _barrier(t, q, v, bound, effort, d, j, own, loaded) -> float:
+def _barrier(t, q, v, bound, effort, d, j, own, loaded, press) -> float:
     """The least change of target ``t`` that makes the upper side's prediction safe with the
     least inertia and, ``loaded`` and moving toward the bound, with the heavier one (``t``
     itself when it is); ``bound`` the upper bound, ``effort`` the derated effort limit, ``d``
     the gravity torque toward the bound (N m). Where no target keeps the heavier joint off the
     bound, its motion is not the drive's to stop within the period: the least inertia's answer
-    stands."""
+    stands. ``loaded`` and ``press`` (its motion toward the bound drives its foot into the
+    ground: row ``PRESS_UP``): the heavier inertia's answer alone (the push lifts the body)."""
     hi = np_max(bound, q)  # past the bound already: no farther
+    if loaded and press:
+        return _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_HEAVY, j], True)
     r = _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_INERTIA, j], True)
     if loaded and v > 0.0:
         r = np_min(r, _barrier_one(t, q, v, hi, effort, d, j, own, own[INV_HEAVY, j], False))
@@ -182,34 +193,16 @@ def pd_barrier_kernel(stage, e, out, q, dq, commanded, has_commanded, g, own) ->
         t = out[e, j]
         effort = g.lim[EFFORT, j] * g.effort_scale[e, j]
         on = loaded[j] > 0.0
-        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own, on)
+        press = own[PRESS_UP, j] > 0.0
+        r = _barrier(t, q[e, j], dq[e, j], own[BOUND_UP, j], effort, up[j], j, own, on, press)
         if r == t:
             qj, vj, bound = -q[e, j], -dq[e, j], own[BOUND_DOWN, j]
-            r = -_barrier(-t, qj, vj, bound, effort, down[j], j, own, on)
+            press = own[PRESS_DOWN, j] > 0.0
+            r = -_barrier(-t, qj, vj, bound, effort, down[j], j, own, on, press)
         if r != t:
             changed = True
             out[e, j] = r
     return FIRED if changed else 0
-
-
-def least_inertia(robot, poses: int = INERTIA_POSES, seed: int = 0) -> np.ndarray:
-    """(n,) kg m^2: each joint's smallest effective inertia ``1 / (M^-1)_jj`` (``M``: the
-    mass matrix, armature included, of the robot's fixed-base model: Pinocchio's CRBA, legs in
-    the air) over its home pose and ``poses`` seeded poses uniform within the joints' ranges.
-    ``tau / (M^-1)_jj`` is the joint's acceleration under a torque ``tau`` with the other
-    joints free; the diagonal ``M_jj`` (the other joints locked) is up to 11 x it (an H1-2's
-    hip roll) and under-predicts a PD target's motion over a control period
-    (docs/measurements.md)."""
-    model = robot.fixed_base_model
-    data = model.createData()
-    rng = np.random.default_rng(seed)
-    lo, hi = sampling_bounds(robot.position_lower, robot.position_upper)  # a wheel: one turn
-    least = np.full(robot.n_joints, np.inf)
-    for q in [robot.home, *(rng.uniform(lo, hi) for _ in range(poses))]:
-        m = pin.crba(model, data, np.asarray(q, dtype=np.float64))
-        m = np.triu(m) + np.triu(m, 1).T  # CRBA fills the upper triangle
-        least = np.minimum(least, 1.0 / np.diag(np.linalg.inv(m)))
-    return least
 
 
 def pd_barrier_constants(guard) -> np.ndarray:
@@ -230,6 +223,7 @@ def pd_barrier_constants(guard) -> np.ndarray:
         least = least_inertia(robot)
         c[INV_INERTIA] = 1.0 / least
         c[INV_HEAVY] = 1.0 / (INERTIA_SPREAD * least)
+        c[PRESS_UP], c[PRESS_DOWN] = pressing_joints(robot)
         c[GRAVITY] = guard.gravity_bound
         envelope = TorqueSpeedEnvelope(robot.motors)
         c[STALL] = np.where(envelope.active, envelope.stall_coefficient, np.inf)
@@ -370,20 +364,6 @@ def _rows_env(torque, c, contact, chains, e: int) -> None:
         loaded[j] = total
 
 
-def foot_chains(robot) -> np.ndarray:
-    """(n_feet, n) float64: 1.0 where joint ``j`` is on the chain from the base to foot ``f``
-    (Pinocchio's ``supports`` of the foot frame's parent joint); (0, n) for an arm."""
-    model = robot.pin_model
-    chains = np.zeros((robot.n_feet, robot.n_joints))
-    index = {name: j for j, name in enumerate(robot.joint_names)}
-    for f, frame in enumerate(robot.foot_frame_ids):
-        for joint in model.supports[model.frames[frame].parentJoint]:
-            j = index.get(model.names[joint])
-            if j is not None:
-                chains[f, j] = 1.0
-    return chains
-
-
 def _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i) -> np.ndarray:
     """:func:`_unsafe` for every env and joint at once ((envs, n) arrays; ``c`` the constants)."""
     kp, kd, stall, no_load, h = (c[r] for r in (KP, KD, STALL, NO_LOAD, STEP))
@@ -423,13 +403,15 @@ def _barrier_one_np(t, q, v, hi, effort, d, c, inv_i, stuck_brakes: bool) -> np.
     return np.where(unsafe, np.where(stuck, held, lo), t)
 
 
-def _barrier_np(t, q, v, bound, effort, d, c, loaded) -> np.ndarray:
+def _barrier_np(t, q, v, bound, effort, d, c, loaded, press) -> np.ndarray:
     """:func:`_barrier` for every env and joint at once (``d`` (envs, n) N m, ``loaded`` (envs,
-    n) bool)."""
+    n) bool, ``press`` (n,) bool)."""
     hi = np.maximum(bound, q)
     r = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_INERTIA], True)
     heavy = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_HEAVY], False)
-    return np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
+    r = np.where(loaded & (v > 0.0), np.minimum(r, heavy), r)
+    pressed = _barrier_one_np(t, q, v, hi, effort, d, c, c[INV_HEAVY], True)
+    return np.where(loaded & press, pressed, r)
 
 
 class PdBarrier(GuardCheck):
@@ -459,8 +441,8 @@ class PdBarrier(GuardCheck):
         up, down = c[TOWARD : TOWARD + 2 * envs : 2], c[TOWARD + 1 : TOWARD + 2 * envs : 2]
         on = c[TOWARD + 2 * envs : TOWARD + 3 * envs] > 0.0
         t = out.copy()
-        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c, on)
-        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c, on)
+        r = _barrier_np(t, q, dq, c[BOUND_UP], effort, up, c, on, c[PRESS_UP] > 0.0)
+        down = -_barrier_np(-t, -q, -dq, c[BOUND_DOWN], effort, down, c, on, c[PRESS_DOWN] > 0.0)
         r = np.where(r == t, down, r)
         r = np.where(c[ACTIVE] != 0.0, r, t)  # the PD joints only
         changed = (r != t).any(axis=1)

@@ -75,7 +75,12 @@ FORMAT = "soak-checkpoint"
 #: 16: a legged robot's yaw-rate tracking (``tracker/yaw_tracked_time``, ``yaw_ring``, ...) and
 #: the schedule's heading commands (``commands/heading``, ``heading_ended``, ``heading_error``);
 #: a version 15 checkpoint has neither, and its resumed yaw figure would lack the time before.
-VERSION = 16
+#: 17: how far past its hard limit each joint went, up and lying down, and its ticks lying down
+#: (``violations/hard_joint_depth``, ``violations/down/hard_joint_ticks``,
+#: ``violations/down/hard_joint_depth``), and each joint's ticks above its velocity and effort
+#: limits and how far (``violations/speed_joint_*``, ``violations/effort_joint_*``); a version
+#: 16 checkpoint has none.
+VERSION = 17
 MANIFEST = "checkpoint.json"
 
 

@@ -25,6 +25,10 @@ from sim2real.eval.world.legged_gym_tree import Setting
 TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "num_cols", "curriculum",
                 "horizontal_scale", "vertical_scale", "terrain_length", "terrain_width",
                 "slope_treshold")  # fmt: skip
+#: The side of the soak's grid of tiles (``[terrain] tiles``) for a legged_gym terrain: our
+#: choice, 5 x 5 tiles of 8 m (40 m), past what a command of HIMLoco's (10 s, up to 2 m/s)
+#: walks from the centre; legged_gym's own robots walk on a grid of ``num_rows x num_cols``.
+GRID_TILES = 5
 #: Why the other ``terrain`` keys are not modelled.
 TERRAIN_APART = {
     "dynamic_friction": "MuJoCo's contact has one sliding friction: the static one is drawn",
@@ -309,6 +313,7 @@ def terrain_table(terrain: dict) -> dict | None:
     out = {k: terrain[k].value for k in TERRAIN_KEYS if k in terrain}
     rows = terrain.get("num_rows")
     out["levels"] = [0, int(rows.value if rows is not None else 10) - 1]
+    out["tiles"] = GRID_TILES
     return out
 
 
@@ -329,7 +334,15 @@ def terrain_lines(c: Context) -> list[str]:
     lines = ["", "[terrain]"]
     for key, value in table.items():
         lines.append(f"{key} = {_fmt(value)}")
-        if key == "levels":
+        if key == "tiles":
+            c.prov.append(
+                f"terrain.tiles = {value} <- the soak's: legged_gym's robot walks on a grid of "
+                "num_rows x num_cols tiles, off its own onto its neighbours; ours on a "
+                f"{value} x {value} grid of the session's kind and level "
+                f"({value * float(table.get('terrain_length', 8.0)):g} m), so that its commands walk "
+                "it across tiles, not off them onto the flat border"
+            )
+        elif key == "levels":
             rows = terrain.get("num_rows")
             src = _src(rows) if rows is not None else "legged_gym's 10 rows (documented default)"
             c.prov.append(f"terrain.levels = {_fmt(value)} <- every row of {src}")

@@ -18,8 +18,7 @@ from pathlib import Path
 from sim2real.deploy.spec.foreign.mapping import robot_joint_named
 from sim2real.deploy.tasks.motion.clip import ClipError
 from sim2real.deploy.tasks.motion.clock import STAND_S, MotionClock
-from sim2real.deploy.tasks.motion.csv_clip import parse_rate, read_csv_clip
-from sim2real.deploy.tasks.motion.onnx_holosoma import read_holosoma_onnx_motion
+from sim2real.deploy.tasks.motion.formats import ClipRequest, read_clip
 from sim2real.robots.files import sha256_file
 
 #: The blocks that read a clip (:mod:`sim2real.deploy.spec.motion_blocks`).
@@ -45,15 +44,18 @@ def motion_for(
             ``motion`` names the clip and its rate; ``metadata``: the export's ``motion`` entry,
             whose sha256 the clip is checked against).
         robot: The robot. envs: Batch size.
-        path: The clip (CSV) in place of the contract's. playback: ``stand`` (to the robot's
+        path: The clip in place of the contract's, any format of
+            :data:`~sim2real.deploy.tasks.motion.formats.CLIP_FORMATS` (rl_sar CSV, BeyondMimic
+            or holosoma NPZ, a motion inside a holosoma or BeyondMimic ONNX). playback: ``stand`` (to the robot's
             home pose over ``stand_s`` s after the clip), ``once``, ``loop``, ``hold``.
-        fps: Hz, in place of the contract's rate. rest_s: s at home between an
+        fps: Hz, in place of the contract's rate (for a file that states none). rest_s: s at home between an
             ``exhibition``'s plays.
 
     Raises:
         ClipError: one line naming the file and field: no clip for a spec that reads one, a clip
             for a spec that reads none, a column no joint of the robot, a rate not a positive
-            number, a frame past a hard limit, a format other than CSV.
+            number, a frame past a hard limit, a file no clip format recognises (naming the
+            formats known).
     """
     foreign = getattr(policy, "foreign", None)
     source = getattr(foreign, "motion", None)
@@ -68,27 +70,26 @@ def motion_for(
             "contract names none: give deploy-run --motion CLIP"
         )
     path = Path(path if path is not None else source.file)
-    if fps is None and source is None:
-        raise ClipError(f"{path}: fps: the contract names no rate: give --motion-fps HZ")
-    fps = parse_rate(fps if fps is not None else source.fps, path)
-    if source is None:
-        raise ClipError(f"{path}: columns: no contract names the clip's joint columns")
-    columns = tuple(robot_joint_named(n, robot.joint_names) for n in source.columns)
-    unknown = [n for n, r in zip(source.columns, columns, strict=True) if r is None]
-    if unknown:
-        raise ClipError(f"{path}: columns: joints {unknown} are no joints of '{robot.name}'")
+    columns = None
+    if source is not None:
+        columns = tuple(robot_joint_named(n, robot.joint_names) for n in source.columns)
+        unknown = [n for n, r in zip(source.columns, columns, strict=True) if r is None]
+        if unknown:
+            raise ClipError(f"{path}: columns: joints {unknown} are no joints of '{robot.name}'")
     limits = {
         n: (float(robot.position_lower[i]), float(robot.position_upper[i]))
         for i, n in enumerate(robot.joint_names)
     }
-    if source.timing == "holosoma_onnx" and path.suffix.lower() == ".onnx":
-        clip = read_holosoma_onnx_motion(path, fps, columns, limits)
-    elif path.suffix.lower() != ".csv":
-        raise ClipError(
-            f"{path}: format: expected a CSV clip (rl_sar, BeyondMimic), got {path.suffix!r}"
-        )
-    else:
-        clip = read_csv_clip(path, columns, fps, limits)
+    request = ClipRequest(
+        path=path,
+        fps=fps if fps is not None else getattr(source, "fps", None),
+        fps_flag=fps is not None,
+        columns=columns,
+        policy_joints=tuple(getattr(policy.spec, "joint_names", ()) or ()),
+        metadata_joints=_metadata_joints(policy),
+        robot_joints=tuple(robot.joint_names),
+    )
+    _, clip = read_clip(request, robot.name, limits)
     _check_hash(policy, path)
     anchor = next((b for b in policy.spec.observation_blocks if b.name == MOTION_BLOCKS[1]), None)
     if anchor is not None:
@@ -101,6 +102,14 @@ def motion_for(
     names = tuple(robot.joint_names[i] for i in waist)
     clock = MotionClock(clip, robot.joint_names, names, envs, playback, robot.home, stand_s, rest_s)
     return clock, waist
+
+
+def _metadata_joints(policy) -> tuple[str, ...] | None:
+    """The policy file's ``joint_names`` metadata (Isaac Lab's exports: comma-joined), or None."""
+    value = getattr(policy, "metadata", {}).get("joint_names")
+    if not value or not isinstance(value, str) or value.lstrip().startswith("["):
+        return None
+    return tuple(n.strip() for n in value.split(","))
 
 
 def _check_hash(policy, path: Path) -> None:

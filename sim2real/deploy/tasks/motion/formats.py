@@ -1,19 +1,18 @@
 """The clip formats ``deploy-run --motion`` and the soak's clip play: a registry, each format by its
 name, how a file of it is recognised (its extension and the keys inside it) and its reader.
 
-=================  ==========  ===========================================================  ======
-format             extension   recognised by                                                reader
-=================  ==========  ===========================================================  ======
-``rl_sar_csv``     ``.csv``    the extension (rl_sar's and BeyondMimic's CSV: root xyz,     :mod:`.csv_clip`
-                               root quaternion x y z w, joints; no header)
-``holosoma_npz``   ``.npz``    archive keys ``fps joint_pos joint_vel body_pos_w             :mod:`.npz_holosoma`
-                               body_quat_w joint_names body_names``
-``beyondmimic_npz`` ``.npz``   archive keys ``fps joint_pos joint_vel body_pos_w             :mod:`.npz_beyondmimic`
-                               body_quat_w`` (no names: the policy's joints name them)
-``holosoma_onnx``  ``.onnx``   graph outputs ``joint_pos joint_vel ref_pos_xyz               :mod:`.onnx_holosoma`
-                               ref_quat_xyzw``
-``beyondmimic_onnx`` ``.onnx`` graph outputs ``joint_pos joint_vel body_pos_w body_quat_w``  :mod:`.onnx_beyondmimic`
-=================  ==========  ===========================================================  ======
+- ``rl_sar_csv``, ``.csv``: the extension decides (rl_sar's and BeyondMimic's CSV: root xyz, root
+  quaternion x y z w, joints; no header, no names: the contract's columns name them),
+  :mod:`.csv_clip`;
+- ``holosoma_npz``, ``.npz``: archive keys ``fps joint_pos joint_vel body_pos_w body_quat_w
+  joint_names body_names`` (``convert_data_format_mj.py``), :mod:`.npz_holosoma`;
+- ``beyondmimic_npz``, ``.npz``: archive keys ``fps joint_pos joint_vel body_pos_w body_quat_w``
+  (``csv_to_npz.py``; no names: the policy's ``joint_names`` metadata or its joint order, Isaac
+  Lab's articulation order, name the columns), :mod:`.npz_beyondmimic`;
+- ``holosoma_onnx``, ``.onnx``: graph outputs ``joint_pos joint_vel ref_pos_xyz ref_quat_xyzw``,
+  :mod:`.onnx_holosoma`;
+- ``beyondmimic_onnx``, ``.onnx``: graph outputs ``joint_pos joint_vel body_pos_w body_quat_w``,
+  :mod:`.onnx_beyondmimic`.
 
 A file is the format whose extension it has and whose keys it all holds, the one with the most
 keys where two fit (holosoma's NPZ holds BeyondMimic's keys and its names); a file no format

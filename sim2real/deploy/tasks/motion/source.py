@@ -46,10 +46,11 @@ def motion_for(
         robot: The robot. envs: Batch size.
         path: The clip in place of the contract's, any format of
             :data:`~sim2real.deploy.tasks.motion.formats.CLIP_FORMATS` (rl_sar CSV, BeyondMimic
-            or holosoma NPZ, a motion inside a holosoma or BeyondMimic ONNX). playback: ``stand`` (to the robot's
-            home pose over ``stand_s`` s after the clip), ``once``, ``loop``, ``hold``.
-        fps: Hz, in place of the contract's rate (for a file that states none). rest_s: s at home between an
-            ``exhibition``'s plays.
+            or holosoma NPZ, a motion inside a holosoma or BeyondMimic ONNX).
+        playback: ``stand`` (to the robot's home pose over ``stand_s`` s after the clip),
+            ``once``, ``loop``, ``hold``.
+        fps: Hz, in place of the contract's rate (for a file that states none).
+        rest_s: s at home between an ``exhibition``'s plays.
 
     Raises:
         ClipError: one line naming the file and field: no clip for a spec that reads one, a clip

@@ -31,12 +31,11 @@ def g1() -> SimpleNamespace:
     )  # fmt: skip
 
 
-def tracker(csv: Path, policy_joints=BEYONDMIMIC_G1_JOINTS, metadata=None) -> SimpleNamespace:
-    """A tracking policy as motion_for reads one: a motion_command block, its joints in Isaac
-    Lab's articulation order (a BeyondMimic policy's), an rl_sar contract naming ``csv`` at 60 Hz
-    with unitree's motor order as its columns."""
+def tracker(csv: Path, metadata=None) -> SimpleNamespace:
+    """A tracking policy as motion_for reads one: a motion_command block, an rl_sar contract
+    naming ``csv`` at 60 Hz with unitree's motor order as its columns, ``metadata``."""
     spec = SimpleNamespace(
-        observation_blocks=[SimpleNamespace(name="motion_command")], joint_names=policy_joints
+        observation_blocks=[SimpleNamespace(name="motion_command")], joint_names=SDK
     )
     contract = SimpleNamespace(motion=MotionSource(str(csv), 60.0, SDK), source="config.yaml")
     return SimpleNamespace(spec=spec, foreign=contract, metadata=metadata or {})
@@ -68,14 +67,26 @@ def test_each_format_plays_through_its_reader_with_joints_by_name(tmp_path):
 
 
 def test_a_beyondmimic_npz_takes_its_column_names_from_the_policys_metadata_first(tmp_path):
-    """An Isaac Lab export's ``joint_names`` metadata names the NPZ's columns even where the
-    spec's joint order is another (here the motor order)."""
+    """An Isaac Lab export's ``joint_names`` metadata names the NPZ's columns (here the
+    articulation order reversed: the clock's joints come out reversed), before the G1's."""
     rows = synthetic_rows(frames=30)
     csv = write_csv(rows, tmp_path / "dance.csv")
     npz = csv_to_npz(rows, tmp_path / "dance.npz")
-    policy = tracker(csv, SDK, {"joint_names": ",".join(BEYONDMIMIC_G1_JOINTS)})
-    clock, _ = motion_for(policy, g1(), 1, npz)
-    np.testing.assert_allclose(clock.pos[0], rows[0, 7:], atol=1e-8)
+    articulation = [SDK.index(n) for n in BEYONDMIMIC_G1_JOINTS]
+    reversed_names = ",".join(BEYONDMIMIC_G1_JOINTS[::-1])
+    clock, _ = motion_for(tracker(csv, {"joint_names": reversed_names}), g1(), 1, npz)
+    np.testing.assert_allclose(
+        clock.pos[0][articulation][::-1], rows[0, 7:][articulation], atol=1e-8
+    )
+
+
+def test_a_beyondmimic_npz_of_unknown_joints_is_refused_not_guessed(tmp_path):
+    """Without the policy's joint_names metadata, only the G1's 29 columns are known."""
+    rows = synthetic_rows(frames=30)
+    csv = write_csv(rows, tmp_path / "dance.csv")
+    npz = csv_to_npz(rows, tmp_path / "dance.npz", joint_pos=np.zeros((30, 23)))
+    message = one_line(lambda: motion_for(tracker(csv), g1(), 1, npz))
+    assert message.startswith(f"{npz}: joint_names: BeyondMimic's NPZ names no joints")
 
 
 def one_line(call) -> str:

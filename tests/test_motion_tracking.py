@@ -99,7 +99,7 @@ def test_an_unmapped_tracking_term_is_refused_by_name(dance):
 
 def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(dance):
     """policy-export policy.pt: the ONNX beside it (parity passed), read back as rl_sar's, its
-    ``motion`` metadata the clip's name, sha256 and rate."""
+    ``motion`` metadata the clip's name, sha256, rate and columns."""
     from sim2real.deploy.export.folder_torchscript import export_folder_torchscript
 
     result = export_folder_torchscript(dance / "policy.pt")
@@ -108,7 +108,10 @@ def test_policy_export_writes_the_graph_and_names_the_clip_with_its_hash(dance):
     meta = {p.key: p.value for p in onnx.load(result.path).metadata_props}
     motion = json.loads(meta["motion"])
     digest = hashlib.sha256((dance / _clip(dance)).read_bytes()).hexdigest()
-    assert motion == {"file": _clip(dance), "sha256": digest, "fps": 50.0, "timing": "rl_sar"}
+    assert motion == {
+        "file": _clip(dance), "sha256": digest, "fps": 50.0, "timing": "rl_sar",
+        "columns": list(_columns(dance)),
+    }  # fmt: skip
 
 
 # ---------------------------------------------------------------------- the CSV clip
@@ -318,6 +321,79 @@ def test_a_few_seconds_of_the_dance_play_without_a_fall(g1_dance, tmp_path):
     assert 0.05 < t["completed"] < 0.15
     assert t["joint_rms_rad_all"] < 0.15 and t["anchor_error_deg_mean"] < 10.0
     assert 0.0 < t["mpjpe_mm"] < 60.0 and t["bodies"] == 29
+
+
+@ON_G1_DANCE_WORKER
+def test_a_beyondmimic_npz_of_the_dance_plays_through_deploy_run(g1_dance, stacks, tmp_path):
+    """The dance's CSV turned into BeyondMimic's NPZ as whole_body_tracking's csv_to_npz.py
+    writes it (50 Hz, articulation order, no names) plays through deploy-run --motion: 4 s, no
+    fall, tracked as the CSV is (0.15 rad RMS, 10 degrees of anchor error)."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from tests.test_motion_npz import csv_to_npz
+
+    robot, policy = g1_dance
+    dance = dance_folder(stacks, tmp_path)
+    npz = csv_to_npz(_rows(dance / _clip(dance)), tmp_path / "dance_102.npz")
+    report = tmp_path / "r.json"
+    argv = [
+        "--backend",
+        "sim",
+        "--robot",
+        str(robot),
+        "--policy",
+        str(policy),
+        "--motion",
+        str(npz),
+    ]
+    assert deploy_run_main([*argv, "--duration", "4", "--report", str(report)]) == 0
+    t = json.loads(report.read_text())["tracking"]
+    assert json.loads(report.read_text())["locomotion"]["falls"] == 0 and t["plays"] == 1
+    assert t["joint_rms_rad_all"] < 0.15 and t["anchor_error_deg_mean"] < 10.0
+
+
+@ON_G1_DANCE_WORKER
+def test_a_re_exported_tracking_onnx_keeps_its_clip_and_plays(g1_dance, tmp_path):
+    """policy-export of the dance's ONNX for the G1 stores its spec (the folder's contract no
+    longer read) and keeps the clip in its ``motion`` metadata: deploy-run plays it, 2 s, no
+    fall."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.export.onnx_source import export_onnx_policy
+    from sim2real.robots import load_robot
+
+    robot, policy = g1_dance
+    written = export_onnx_policy(policy, load_robot(robot), out=policy.with_name("re.onnx")).path
+    meta = {p.key: p.value for p in onnx.load(written).metadata_props}
+    assert "policy_spec" in meta and json.loads(meta["motion"])["columns"]
+    report = tmp_path / "r.json"
+    argv = ["--backend", "sim", "--robot", str(robot), "--policy", str(written)]
+    assert deploy_run_main([*argv, "--duration", "2", "--report", str(report)]) == 0
+    r = json.loads(report.read_text())
+    assert r["locomotion"]["falls"] == 0 and r["tracking"]["plays"] == 1
+
+
+@ON_G1_DANCE_WORKER
+def test_deploy_run_refuses_a_clip_no_format_recognises_in_one_line(g1_dance, tmp_path, capsys):
+    """deploy-run --motion with a BVH file exits 3 before the run: one line naming the file and
+    the formats known."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    robot, policy = g1_dance
+    clip = tmp_path / "take.bvh"
+    clip.write_text("HIERARCHY\n")
+    argv = [
+        "--backend",
+        "sim",
+        "--robot",
+        str(robot),
+        "--policy",
+        str(policy),
+        "--motion",
+        str(clip),
+    ]
+    assert deploy_run_main([*argv, "--duration", "1"]) == 3
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1 and f"{clip}: format: no clip format recognises it" in err[0], err
+    assert "beyondmimic_npz (.npz)" in err[0] and "rl_sar_csv (.csv)" in err[0]
 
 
 def test_tasks_are_chosen_by_name_from_the_registry():

@@ -150,7 +150,9 @@ def contract_sizes(contract: ForeignContract) -> tuple[int, int, np.ndarray]:
 def motion_metadata(motion) -> str:
     """The ``motion`` metadata entry of a contract's clip (:class:`~sim2real.deploy.spec.foreign.
     contract.MotionSource`): JSON ``{"file": name beside the graph, "sha256", "fps" Hz,
-    "timing"}``. The clip stays a file beside the graph, as the stack keeps it (a 1,749-frame
+    "timing", "columns"}`` (``columns``: the joint of each clip column, the contract's names, so
+    that a re-export whose spec is stored, no longer read from the folder, still plays it).
+    The clip stays a file beside the graph, as the stack keeps it (a 1,749-frame
     CSV is 0.6 MB: the graph's metadata would carry it twice); its hash tells a changed clip.
 
     Raises:
@@ -160,7 +162,13 @@ def motion_metadata(motion) -> str:
     if not path.is_file():
         raise ExportError(f"{path}: the contract's motion_file is not a file beside the policy")
     return json.dumps(
-        {"file": path.name, "sha256": sha256_file(path), "fps": motion.fps, "timing": motion.timing}
+        {
+            "file": path.name,
+            "sha256": sha256_file(path),
+            "fps": motion.fps,
+            "timing": motion.timing,
+            "columns": list(motion.columns),
+        }
     )
 
 

@@ -121,6 +121,8 @@ def export_onnx_policy(
 def _metadata(source: Path, policy: OnnxPolicy, original: dict, metadata: dict | None) -> dict:
     """The written file's metadata besides the spec and the parity: the source's hash, format
     and own metadata, the tools, the command ranges of its contract (or holosoma's as written),
+    the clip its contract names (``motion``: read back by
+    :func:`sim2real.deploy.tasks.motion.source.motion_for`, the stored spec naming none),
     and ``metadata``'s entries (never ``policy_spec`` or ``parity``)."""
     given = policy.foreign is None
     meta = {
@@ -138,5 +140,12 @@ def _metadata(source: Path, policy: OnnxPolicy, original: dict, metadata: dict |
         meta["command_ranges"] = json.dumps({names[k]: list(v) for k, v in ranges.items()})
     elif "command_ranges" in original:  # holosoma's, kept as it wrote it
         meta["command_ranges"] = original["command_ranges"]
+    motion = None if given else policy.foreign.motion
+    if motion is not None:  # the clip: the written spec is stored, the contract no longer read
+        from sim2real.deploy.export.folder_torchscript import motion_metadata
+
+        meta["motion"] = motion_metadata(motion)
+    elif "motion" in original:
+        meta["motion"] = original["motion"]
     meta.update({k: v for k, v in (metadata or {}).items() if k not in ("policy_spec", "parity")})
     return meta

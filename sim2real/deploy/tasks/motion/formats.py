@@ -7,8 +7,9 @@ name, how a file of it is recognised (its extension and the keys inside it) and 
 - ``holosoma_npz``, ``.npz``: archive keys ``fps joint_pos joint_vel body_pos_w body_quat_w
   joint_names body_names`` (``convert_data_format_mj.py``), :mod:`.npz_holosoma`;
 - ``beyondmimic_npz``, ``.npz``: archive keys ``fps joint_pos joint_vel body_pos_w body_quat_w``
-  (``csv_to_npz.py``; no names: the policy's ``joint_names`` metadata or its joint order, Isaac
-  Lab's articulation order, name the columns), :mod:`.npz_beyondmimic`;
+  (``csv_to_npz.py``; no names: the policy's ``joint_names`` metadata, Isaac Lab's articulation
+  order, names the columns, else a 29-column file on a robot with the G1's joints is
+  :data:`~.npz_beyondmimic.BEYONDMIMIC_G1_JOINTS`), :mod:`.npz_beyondmimic`;
 - ``holosoma_onnx``, ``.onnx``: graph outputs ``joint_pos joint_vel ref_pos_xyz ref_quat_xyzw``,
   :mod:`.onnx_holosoma`;
 - ``beyondmimic_onnx``, ``.onnx``: graph outputs ``joint_pos joint_vel body_pos_w body_quat_w``,
@@ -47,8 +48,6 @@ class ClipRequest:
             is then refused, never silently overridden).
         columns: The contract's joint of each CSV column, by the robot's names; None: no contract
             names them.
-        policy_joints: The policy's joints in its order, by the robot's names (a BeyondMimic
-            policy's order is Isaac Lab's articulation order, the order of its NPZ's columns).
         metadata_joints: The policy file's ``joint_names`` metadata (Isaac Lab's exports,
             comma-joined), split; None when it has none.
         robot_joints: The robot's joints (robot.toml order).
@@ -58,7 +57,6 @@ class ClipRequest:
     fps: float | None
     fps_flag: bool
     columns: tuple[str, ...] | None
-    policy_joints: tuple[str, ...]
     metadata_joints: tuple[str, ...] | None
     robot_joints: tuple[str, ...]
 
@@ -110,9 +108,26 @@ def _read_holosoma_npz(request: ClipRequest) -> MotionClip:
 
 
 def _read_beyondmimic_npz(request: ClipRequest) -> MotionClip:
-    from sim2real.deploy.tasks.motion.npz_beyondmimic import read_beyondmimic_npz
+    from sim2real.deploy.tasks.motion.npz_beyondmimic import (
+        BEYONDMIMIC_G1_JOINTS,
+        read_beyondmimic_npz,
+    )
 
-    names = request.metadata_joints or request.policy_joints
+    names = request.metadata_joints
+    if names is None:
+        try:
+            with np.load(request.path, allow_pickle=False) as data:
+                width = data["joint_pos"].shape[-1]
+        except (OSError, ValueError, IndexError):  # the reader names what is wrong
+            width = len(BEYONDMIMIC_G1_JOINTS)
+        g1 = [robot_joint_named(n, request.robot_joints) for n in BEYONDMIMIC_G1_JOINTS]
+        if width != len(BEYONDMIMIC_G1_JOINTS) or None in g1:
+            raise ClipError(
+                f"{request.path}: joint_names: BeyondMimic's NPZ names no joints and the policy "
+                "has no joint_names metadata (Isaac Lab's articulation order) to name its "
+                f"{width} columns; known without it: the G1 29-dof's"
+            )
+        names = BEYONDMIMIC_G1_JOINTS
     return _own_rate(request, read_beyondmimic_npz(request.path, names))
 
 

@@ -15,6 +15,7 @@ import json
 import sys
 from pathlib import Path
 
+from sim2real.deploy.spec.foreign.contract import MotionSource
 from sim2real.deploy.spec.foreign.mapping import robot_joint_named
 from sim2real.deploy.tasks.motion.clip import ClipError
 from sim2real.deploy.tasks.motion.clock import STAND_S, MotionClock
@@ -59,7 +60,7 @@ def motion_for(
             formats known).
     """
     foreign = getattr(policy, "foreign", None)
-    source = getattr(foreign, "motion", None)
+    source = getattr(foreign, "motion", None) or _exported_motion(policy)
     if not reads_motion(policy.spec):
         if path is not None:
             raise ClipError(f"{path}: --motion: the policy's observation reads no clip")
@@ -86,7 +87,6 @@ def motion_for(
         fps=fps if fps is not None else getattr(source, "fps", None),
         fps_flag=fps is not None,
         columns=columns,
-        policy_joints=tuple(getattr(policy.spec, "joint_names", ()) or ()),
         metadata_joints=_metadata_joints(policy),
         robot_joints=tuple(robot.joint_names),
     )
@@ -103,6 +103,34 @@ def motion_for(
     names = tuple(robot.joint_names[i] for i in waist)
     clock = MotionClock(clip, robot.joint_names, names, envs, playback, robot.home, stand_s, rest_s)
     return clock, waist
+
+
+def _exported_motion(policy) -> MotionSource | None:
+    """The clip an export whose spec is stored names in its ``motion`` metadata (``policy-export``
+    of a tracking ONNX: :func:`sim2real.deploy.export.folder_torchscript.motion_metadata`), the
+    file beside the policy; None: no such entry.
+
+    Raises:
+        ClipError: an entry that is not JSON or lacks ``file``, ``fps`` or ``columns``.
+    """
+    entry = getattr(policy, "metadata", {}).get("motion")
+    path = getattr(policy, "path", None)
+    if not entry or path is None:
+        return None
+    try:
+        recorded = json.loads(entry)
+        return MotionSource(
+            str(Path(path).parent / recorded["file"]),
+            recorded["fps"],
+            tuple(recorded["columns"]),
+            recorded.get("timing", "rl_sar"),
+            f"the export's motion metadata ({recorded['file']} beside {Path(path).name})",
+        )
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ClipError(
+            f"{path}: metadata 'motion': expected JSON with file, fps and columns (policy-export "
+            f"writes them), got {exc!r}"
+        ) from None
 
 
 def _metadata_joints(policy) -> tuple[str, ...] | None:

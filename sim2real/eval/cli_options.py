@@ -68,7 +68,8 @@ def _add_campaign_options(p: argparse.ArgumentParser) -> None:
         "--motion",
         default=None,
         metavar="CLIP",
-        help="a motion-tracking policy's clip in place of its contract's; such a policy dances "
+        help="a motion-tracking policy's clip in place of its contract's (any format "
+        "deploy-run --motion plays); such a policy dances "
         "an exhibition: clip, --rest-s standing, clip again",
     )
     p.add_argument(

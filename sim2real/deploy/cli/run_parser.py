@@ -176,8 +176,9 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         "--motion",
         default=None,
         metavar="CLIP",
-        help="motion-tracking policies: the reference clip (CSV: root position, quaternion x y z "
-        "w, joint angles) in place of the one its contract names beside it",
+        help="motion-tracking policies: the reference clip in place of the one its contract "
+        "names beside it: rl_sar CSV, BeyondMimic or holosoma NPZ, a holosoma or BeyondMimic "
+        "ONNX's motion (recognised by extension and content; docs/motion-tracking.md)",
     )
     p.add_argument(
         "--motion-fps",

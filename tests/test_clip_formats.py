@@ -8,6 +8,7 @@ spec's blocks (no stacks needed); deploy-run on unitree_mujoco's G1 is in test_m
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -129,3 +130,20 @@ def test_a_clip_joint_the_robot_lacks_is_refused_by_name(tmp_path):
     holo = write_holosoma(tmp_path / "h.npz", joints=(*SDK[:-1], "tail_joint"))
     message = one_line(lambda: motion_for(tracker(csv), g1(), 1, holo))
     assert message == f"{holo}: joint_names: joints ['tail_joint'] are no joints of 'g1'"
+
+
+def test_an_exports_motion_metadata_names_the_clip_when_no_contract_is_read(tmp_path):
+    """A re-exported tracking ONNX (its spec stored, no contract read): the ``motion`` entry
+    names the clip beside the file, its rate and columns; an entry without columns is refused."""
+    rows = synthetic_rows(frames=30)
+    write_csv(rows, tmp_path / "dance.csv")
+    entry = {"file": "dance.csv", "sha256": "0", "fps": 50.0, "timing": "rl_sar"}
+    policy = tracker(tmp_path / "dance.csv")
+    policy.foreign, policy.path = None, tmp_path / "policy.g1.onnx"
+    policy.metadata = {"motion": json.dumps({**entry, "columns": list(SDK)})}
+    clock, _ = motion_for(policy, g1(), 1)
+    assert clock.clip.source == tmp_path / "dance.csv" and clock.clip.fps == 50.0
+    np.testing.assert_allclose(clock.pos[0], rows[0, 7:], atol=1e-8)
+    policy.metadata = {"motion": json.dumps(entry)}
+    message = one_line(lambda: motion_for(policy, g1(), 1))
+    assert message.startswith(f"{policy.path}: metadata 'motion': expected JSON with file, fps")

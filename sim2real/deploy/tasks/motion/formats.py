@@ -215,7 +215,7 @@ def recognise(path) -> ClipFormat:
     """
     path = Path(path)
     if not path.is_file():
-        raise ClipError(f"{path}: --motion: expected a clip file, got no such file")
+        raise ClipError(f"{path}: file: expected a clip file, got none there")
     extension = path.suffix.lower()
     candidates = [f for f in CLIP_FORMATS.values() if f.extension == extension]
     keys = _keys(path, extension) if candidates else None

@@ -143,3 +143,19 @@ def test_a_file_that_is_not_an_onnx_model_is_refused(tmp_path):
     path = tmp_path / "policy.onnx"
     path.write_bytes(b"\x00 not a model")
     one_line_refusal(lambda: read_beyondmimic_onnx_motion(path, 50.0), path, "file")
+
+
+def test_the_baked_clip_plays_through_motion_as_its_registered_format(tmp_path):
+    """deploy-run --motion policy.onnx (the exporter's file): recognised by its outputs as
+    beyondmimic_onnx, played at --motion-fps, its joints by the metadata's names."""
+    from sim2real.deploy.tasks.motion.formats import recognise
+    from sim2real.deploy.tasks.motion.source import motion_for
+    from tests.test_clip_formats import g1, synthetic_rows, tracker, write_csv
+
+    tables = clip_tables()
+    path = export(tmp_path / "policy.onnx", tables)
+    policy = tracker(write_csv(synthetic_rows(frames=10), tmp_path / "dance.csv"))
+    clock, _ = motion_for(policy, g1(), 1, path, fps="50")
+    assert recognise(path).name == "beyondmimic_onnx" and clock.clip.fps == 50.0
+    columns = [BEYONDMIMIC_G1_JOINTS.index(n) for n in SDK]
+    np.testing.assert_allclose(clock.pos[7], tables["joint_pos"][7, columns], atol=1e-6)

@@ -118,9 +118,9 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
     """One run (module docstring): a dict of crossed, t_s, x_m, stop, exit code, hard ticks."""
     from sim2real.deploy.backends.registry import make_backend
     from sim2real.deploy.cli.deploy_run import (
-        _build_rig,
-        _load_policies,
+        build_rig,
         exit_code,
+        load_policies,
         run_report,
     )
     from sim2real.deploy.cli.run_operator import parse_policies
@@ -137,11 +137,11 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
     args = build_parser(argv).parse_args(argv)
     args.policies = parse_policies(args.policy)
     robot = load_robot(args.robot)
-    policies = _load_policies(args, robot)
+    policies = load_policies(args, robot)
     robot, _ = drive_robot(robot, next(iter(policies.values())).spec)
     backend = make_backend(args, robot, "position")
     clock = SimClock(robot.control_period)
-    rig = _build_rig(args, robot, policies, backend, None, clock, None, None, None)
+    rig = build_rig(args, robot, policies, backend, None, clock, None, None, None)
     if "runtime" in off:  # the policy's own loop on this plant (the runtime not run)
         noisy, ramp = "noisy_truth_obs" in off, "ramp" in off
         stand = start_delay(seed, stand_max)

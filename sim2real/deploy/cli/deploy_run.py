@@ -79,7 +79,7 @@ def run(args) -> int:
     wait, rt_request = realtime_options(args, bool(args.realtime) or args.backend != "sim")
     check_outputs(args)
     robot = load_robot(args.robot)
-    policies = _load_policies(args, robot)
+    policies = load_policies(args, robot)
     policy = next(iter(policies.values()))
     for line in contract_messages(policy):
         print(line, file=sys.stderr)
@@ -110,7 +110,7 @@ def run(args) -> int:
         clock = SimClock(robot.control_period)
     # the rig (its compiled stages, warmed) before the bring-up (in _run_rig): a robot brought
     # up holds at home, and what plays on its clock (a scripted remote) waits on no compile
-    rig = _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion)
+    rig = build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion)
     try:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
@@ -130,7 +130,7 @@ def _attach_height_map(args, backend, spec) -> None:
         )
 
 
-def _load_policies(args, robot) -> dict:
+def load_policies(args, robot) -> dict:
     """{name: policy} of ``--policy`` (with ``--spec``), or ``--excitation``'s scripted
     trajectory in the policy's place.
 
@@ -208,7 +208,7 @@ def realtime_options(args, realtime: bool):
     return wait, request
 
 
-def _build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion=None):
+def build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion=None):
     """The run's :class:`~sim2real.deploy.rig.rig.Rig` on the first of ``policies``: the runtime
     (telemetry, overrun limit), the task of the options, the motion figures, the hooks the
     options switch on, the operator (``--operator``'s ``mapping``, after them) and, on hardware

@@ -120,7 +120,7 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
     from sim2real.deploy.cli.deploy_run import (
         build_rig,
         exit_code,
-        load_policies,
+        run_policies,
         run_report,
     )
     from sim2real.deploy.cli.run_operator import parse_policies
@@ -137,7 +137,7 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
     args = build_parser(argv).parse_args(argv)
     args.policies = parse_policies(args.policy)
     robot = load_robot(args.robot)
-    policies = load_policies(args, robot)
+    policies = run_policies(args, robot)
     robot, _ = drive_robot(robot, next(iter(policies.values())).spec)
     backend = make_backend(args, robot, "position")
     clock = SimClock(robot.control_period)

@@ -79,7 +79,7 @@ def run(args) -> int:
     wait, rt_request = realtime_options(args, bool(args.realtime) or args.backend != "sim")
     check_outputs(args)
     robot = load_robot(args.robot)
-    policies = load_policies(args, robot)
+    policies = run_policies(args, robot)
     policy = next(iter(policies.values()))
     for line in contract_messages(policy):
         print(line, file=sys.stderr)
@@ -130,7 +130,7 @@ def _attach_height_map(args, backend, spec) -> None:
         )
 
 
-def load_policies(args, robot) -> dict:
+def run_policies(args, robot) -> dict:
     """{name: policy} of ``--policy`` (with ``--spec``), or ``--excitation``'s scripted
     trajectory in the policy's place.
 

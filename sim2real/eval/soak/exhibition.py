@@ -29,6 +29,16 @@ def exhibition_task(task: dict, policy, robot, envs: int, config) -> None:
         task.update(task="tracking", motion=motion)
 
 
+def check_exhibition(policy, robot, config) -> None:
+    """Read the clip :func:`exhibition_task` would play, on the driver before the campaign
+    writes anything (a refusal leaves no ``sessions/`` folder and removes no earlier session).
+
+    Raises:
+        sim2real.deploy.tasks.motion.clip.ClipError: a clip that does not fit (one line).
+    """
+    exhibition_task({}, policy, robot, 1, config)
+
+
 def heat_report(plays: list[dict]) -> dict:
     """The heat report of one session's ``plays`` (the tracking task's play log, in order).
 

@@ -317,8 +317,8 @@ class TrackingTask:
         clip = self.motion.clip
         return {
             "clip": str(clip.source),
-            "frames": clip.frames,
-            "fps": clip.fps,
+            "frames": clip.shown[0],  # as its stack states them (MotionClip.stated)
+            "fps": clip.shown[1],
             "length_s": self.motion.length,
             "playback": self.motion.playback,
             "plays": int(self.motion.plays.sum()),

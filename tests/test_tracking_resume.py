@@ -200,3 +200,30 @@ def test_the_anchor_is_judged_against_the_true_heading_not_the_estimates(go2, go
 
     straight, turned = anchor(0.0), anchor(0.5)
     assert turned == pytest.approx(straight, abs=1.0), (straight, turned)
+
+
+def test_a_clip_campaign_is_not_judged_on_a_baselines_velocity_tracking(legged_result):
+    """A clip campaign against a velocity-commanded baseline of the same robot (or the other way
+    round): no velocity tracking to compare, so no regression of it (the clip side's None was
+    read as 0, 'tracking success fell from 0.9 to 0.000'); two velocity campaigns still compare."""
+    from sim2real.eval.report.baseline import compare_with_baseline
+    from sim2real.eval.report.build import build_report
+    from sim2real.eval.report.schema import Thresholds
+
+    clip = copy.deepcopy(legged_result)
+    clip["locomotion"]["commanded_by"] = "clip"
+    walk = copy.deepcopy(legged_result)
+    walk["locomotion"]["tracked_s"] = 0.9 * walk["locomotion"]["running_s"]  # a good baseline
+    t = Thresholds()
+    clips, walks = (
+        build_report({"robot": "go2"}, [clip], t),
+        build_report({"robot": "go2"}, [walk], t),
+    )
+    assert walks["totals"]["locomotion"]["tracking_success"] == pytest.approx(0.9)
+    for new, old in ((clips, walks), (walks, clips)):
+        compared = compare_with_baseline(new, old, t)
+        assert not any(m.startswith("locomotion.") for m in compared["compared"]), compared
+    worse = build_report({"robot": "go2"}, [copy.deepcopy(legged_result)], t)
+    worse["totals"]["locomotion"]["tracking_success"] = 0.5
+    metrics = {r["metric"] for r in compare_with_baseline(worse, walks, t)["regressions"]}
+    assert "locomotion.tracking_success" in metrics

@@ -13,7 +13,14 @@ import numpy as np
 import pytest
 
 from sim2real.eval.soak.falls import ORIGINS, attribute_falls, falls_by_origin, stops_while_falling
-from sim2real.eval.soak.sweep import FALL_ALLOWANCE, QUANTITIES, TOLERANCE, margin_text, margins
+from sim2real.eval.soak.sweep import (
+    FALL_ALLOWANCE,
+    QUANTITIES,
+    TOLERANCE,
+    margin_text,
+    margins,
+    session_success,
+)
 from sim2real.eval.world.domain import DomainError, legged_gym_domain, training_domain
 from sim2real.eval.world.pushes import DomainPushes, PushRanges, push_velocity
 from sim2real.eval.world.ranges_file import RangesError, load_ranges, load_ranges_text
@@ -667,3 +674,20 @@ def test_robot_labs_command_period_is_read_not_the_soaks_default(tmp_path):
     read = load_ranges_text(env_yaml_domain(env), "env.yaml", load_robot("go2w"))
     assert read.commands.period == ranges.commands.period
     assert read.commands.zero_fraction == ranges.commands.zero_fraction
+
+
+def test_a_clip_sessions_sweep_success_is_its_clips_not_a_zero_command_tracking():
+    """A sweep level's success of a session a motion clip commands: the share of its clips no
+    stop ended (the one cut short by the session's end counted as not stopped), not the velocity
+    tracker's zero-command tracking (which it read: 0.95 here for a dance that fell in 1 of 2)."""
+    play = {"stopped": False, "completed": 1.0}
+    loco = {"commanded_by": "clip", "tracking_success": 0.95}
+    clips = [play, {**play, "stopped": True, "completed": 0.4}]
+    result = {"locomotion": loco, "exhibition": {"clips": clips}}
+    assert session_success(result) == pytest.approx(0.5)
+    cut = [play, {**play, "unfinished": True, "completed": 0.3}]
+    assert session_success({**result, "exhibition": {"clips": cut}}) == pytest.approx(1.0)
+    assert session_success({**result, "exhibition": {"clips": []}}) is None
+    walk = {"locomotion": {**loco, "commanded_by": "velocity"}}
+    assert session_success(walk) == pytest.approx(0.95)
+    assert session_success({"locomotion": None, "goals": {"success_rate": 0.8}}) == 0.8

@@ -285,6 +285,44 @@ def test_holosoma_gait_clock_in_the_runtime_ticks_is_holosomas(go2, tmp_path):
     np.testing.assert_allclose(seen[:, 21:23], np.cos(phase), rtol=0, atol=2e-6)  # cos_phase
 
 
+@pytest.mark.parametrize(("key", "value"), [("fps", 0), ("control_decimation", 0),
+                                             ("control_decimation", 2.5), ("fps", -200)])  # fmt: skip
+def test_a_holosoma_rate_of_zero_or_below_is_refused_naming_the_key(tmp_path, capsys, key, value):
+    """``simulator.config.sim``'s ``fps / control_decimation`` is the control rate: a
+    control_decimation of 0 was a ZeroDivisionError traceback (exit 1, a hard violation's
+    code), 2.5 a rate read silently; one line naming the key, exit 3."""
+    experiment = fs.holosoma_experiment(fs.HOLOSOMA_ORDER)
+    experiment["simulator"]["config"]["sim"][key] = value
+    path = fs.write_holosoma(tmp_path / "policy.onnx", experiment, OBS_DIM)
+    argv = ["--robot", "go2", "--policy", str(path), "--backend", "sim", "--duration", "0.1"]
+    assert deploy_run_main(argv) == 3
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1 and f"'simulator.config.sim.{key}': expected" in err[0], err
+    assert f"got {value!r}" in err[0], err
+
+
+@pytest.mark.parametrize(
+    ("where", "key", "value"),
+    [("sim", "dt", 0), ("sim", "dt", -0.005), ("sim", "dt", "fast"), (None, "decimation", 0),
+     (None, "decimation", 2.5)],
+)  # fmt: skip
+def test_an_isaaclab_period_of_zero_or_below_is_refused_naming_the_key(
+    tmp_path, capsys, where, key, value
+):
+    """env.yaml's ``sim.dt`` x ``decimation`` is the control period: 0 was a ZeroDivisionError
+    traceback (exit 1), a decimation of 2.5 read as 2 (a 100-Hz policy); one line naming the
+    file and key, exit 3."""
+    env = fs.isaaclab_env()
+    (env[where] if where else env)[key] = value
+    path = fs.write_isaaclab_run(tmp_path / "run", env, OBS_DIM, 12)
+    argv = ["--robot", "go2", "--policy", str(path), "--backend", "sim", "--duration", "0.1"]
+    assert deploy_run_main(argv) == 3
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    name = f"{where}.{key}" if where else key
+    assert len(err) == 1 and f"env.yaml: '{name}': expected a number of" in err[0], err
+    assert f"got {value!r}" in err[0], err
+
+
 # ------------------------------------------------------------------------------------ Isaac Lab
 def test_isaaclab_run_deploys_on_go2_in_the_articulation_order(go2, tmp_path, capsys):
     run = tmp_path / "logs" / "rsl_rl" / "unitree_go2_flat" / "2026-01-01_00-00-00"

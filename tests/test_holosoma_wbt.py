@@ -102,6 +102,46 @@ def test_the_actions_read_obs_alone_and_a_graph_whose_actions_read_time_step_is_
         read_holosoma_onnx_motion(path, 50.0, ["a", "b"])
 
 
+def _small_wbt(path: Path, frames: int) -> Path:
+    """A graph shaped as holosoma's WBT export (module docstring of
+    sim2real/deploy/tasks/motion/onnx_holosoma.py): ``actions`` from ``obs``, the clip's tables
+    gathered at ``time_step``; joints: the waist's three and one more, the clip at rest."""
+    cols = 4
+    tables = {
+        "joint_pos": np.zeros((frames, cols)),
+        "joint_vel": np.zeros((frames, cols)),
+        "ref_pos_xyz": np.tile([0.0, 0.0, 1.0], (frames, 1)),
+        "ref_quat_xyzw": np.tile([0.0, 0.0, 0.0, 1.0], (frames, 1)),
+    }
+    inits = [helper.make_tensor("index", TensorProto.INT64, [], [0])]
+    nodes = [helper.make_node("Identity", ["obs"], ["actions"])]
+    outputs = [helper.make_tensor_value_info("actions", TensorProto.FLOAT, [1, cols])]
+    for name, table in tables.items():
+        inits.append(helper.make_tensor(f"{name}_table", TensorProto.FLOAT, table.shape,
+                                        table.ravel().tolist()))  # fmt: skip
+        nodes.append(helper.make_node("Gather", [f"{name}_table", "index"], [name]))
+        outputs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, [table.shape[1]]))
+    inputs = [
+        helper.make_tensor_value_info("obs", TensorProto.FLOAT, [1, cols]),
+        helper.make_tensor_value_info("time_step", TensorProto.FLOAT, [1, 1]),
+    ]
+    onnx.save(helper.make_model(helper.make_graph(nodes, "wbt", inputs, outputs, inits)), path)
+    return path
+
+
+def test_the_clip_is_named_by_holosomas_frames_and_rate_not_the_clocks(tmp_path):
+    """holosoma_inference plays the graph's T frames one a tick at rl_rate (50 Hz): the clip
+    carries T + 1 frames at 50 x (T + 1) / T Hz for the clock (the first frame twice), and is
+    named as holosoma plays it, T frames at 50 Hz, its length T / 50 s (a report said 6775
+    frames at 50.0074 Hz for the 6774 of fastsac_g1_29dof_dancing.onnx)."""
+    frames = 200
+    columns = ["a_joint", *WAIST]
+    clip = read_holosoma_onnx_motion(_small_wbt(tmp_path / "w.onnx", frames), 50.0, columns)
+    assert clip.frames == frames + 1 and clip.fps == pytest.approx(50.0 * 201 / 200)
+    assert clip.shown == (frames, 50.0)
+    assert MotionClock(clip, columns, WAIST, 1).length == pytest.approx(frames / 50.0)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -155,6 +195,7 @@ def test_a_few_seconds_of_holosomas_dance_play_with_no_hand_spec(stacks, wbt, tm
     r = json.loads(report.read_text())
     t = r["tracking"]
     assert r["locomotion"]["falls"] == 0 and t["plays"] == 1
+    assert t["fps"] == 50.0 and t["length_s"] == pytest.approx(t["frames"] / 50.0)
     played = t["completed"] * t["length_s"]
     assert abs(played - (r["locomotion"]["running_s"] - 1.0)) < 0.03  # a tick
     assert t["joint_rms_rad_all"] < 0.15 and t["anchor_error_deg_mean"] < 10.0

@@ -453,6 +453,33 @@ def test_deploy_run_refuses_a_clip_of_another_robot_in_one_line(g1_dance, tmp_pa
     assert len(err) == 1 and f"{clip}: row 1: expected 36 columns" in err[0], err
 
 
+@pytest.mark.parametrize("fps", ["0", "-50", "nan", "fast"])
+def test_a_motion_fps_not_above_zero_is_refused_naming_the_flag(go2_onnx, fps, capsys):
+    """``--motion-fps 0``: one line naming the flag and the expected value, exit 3, before the
+    run (it named the clip's ``fps`` field, or on a policy that reads no clip went unread)."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    argv = ["--backend", "sim", "--robot", "go2", "--policy", str(go2_onnx), "--duration", "0.1"]
+    assert deploy_run_main([*argv, "--motion-fps", fps]) == 3
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert err == [
+        f"deploy-run: error: --motion-fps {fps}: expected the clip's frames per second, "
+        "a number > 0"
+    ], err
+
+
+@ON_G1_DANCE_WORKER
+def test_a_motion_fps_of_zero_for_the_dance_names_the_flag(g1_dance, capsys):
+    """The same for the dance, whose contract names a clip and its rate."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    robot, policy = g1_dance
+    argv = ["--backend", "sim", "--robot", str(robot), "--policy", str(policy)]
+    assert deploy_run_main([*argv, "--duration", "0.1", "--motion-fps", "0"]) == 3
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1 and "--motion-fps 0: expected" in err[0] and "> 0" in err[0], err
+
+
 def test_stand_appends_a_transition_to_home_then_holds_it(tmp_path):
     """``stand`` (holosoma's default_pose_append): past the 0.5 s clip, joints and velocities
     blend linearly from the last frame to home and zero over stand_s = 1 s, the root turns

@@ -146,6 +146,26 @@ def test_rl_sar_history_and_clip_are_read_or_refused_in_one_line(go2w, tmp_path)
         OnnxPolicy(write(tmp_path / "c", observations_history=[0, 2]), go2w)
 
 
+@pytest.mark.parametrize(
+    "key, value", [("dt", 0), ("dt", 0.0), ("dt", -0.005), ("decimation", 0), ("decimation", -4)]
+)
+def test_a_control_period_of_zero_or_below_is_refused_naming_the_file_and_key(
+    tmp_path, capsys, key, value
+):
+    """``dt`` x ``decimation`` is the control period and its inverse the rate: 0 was a
+    ZeroDivisionError traceback and exit 1 (a hard violation's code), a negative one a spec error
+    naming neither file nor key; now one line naming config.yaml and the key, exit code 3."""
+    path = write(tmp_path, **{key: value})
+    args = ["--robot", "go2w", "--policy", str(path), "--backend", "sim", "--duration", "0.1"]
+    code = deploy_run_main(args)
+    err = capsys.readouterr().err
+    assert code == 3, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert f"config.yaml: '{key}': expected" in lines[0] and "> 0" in lines[0], lines[0]
+    assert f"got {value!r}" in lines[0], lines[0]
+
+
 def test_deploy_run_rolls_the_go2w_on_its_wheels_speed_targets_from_the_rl_sar_folder(
     tmp_path, capsys
 ):

@@ -193,6 +193,31 @@ def test_a_short_go2_soak_reports_falls_tracking_and_distance(go2_onnx, tmp_path
     assert "Locomotion" in (out / "report.html").read_text()
 
 
+def test_a_soak_refused_for_its_clip_writes_nothing_and_removes_no_earlier_session(
+    go2_onnx, tmp_path, capsys
+):
+    """A clip the policy cannot play (here: the walker reads none) is refused in one line, exit
+    3, before the campaign writes: a fresh --out gets no empty ``sessions/`` folder, and an
+    earlier campaign's session in another --out is not removed (it was, before the refusal)."""
+    from sim2real.eval.cli import main
+
+    clip = tmp_path / "clip.csv"
+    clip.write_text("0,0,0\n")
+    earlier = tmp_path / "earlier" / "sessions" / "seed0000" / "result.json"
+    earlier.parent.mkdir(parents=True)
+    earlier.write_text("{}")
+    for out in (tmp_path / "fresh", tmp_path / "earlier"):
+        argv = ["--robot", "go2", "--policy", str(go2_onnx), "--hours", "0.001", "--sessions"]
+        argv += ["1", "--out", str(out), "--no-progress", "--no-film", "--no-domain"]
+        assert main([*argv, "--motion", str(clip)]) == 3
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [
+            f"soak-test: error: {clip}: --motion: the policy's observation reads no clip"
+        ]
+    assert not (tmp_path / "fresh").exists()
+    assert earlier.read_text() == "{}"
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(config, tmp_path_factory):
     out = tmp_path_factory.mktemp("legged_whole")

@@ -274,6 +274,29 @@ def test_the_report_gives_falls_tracking_and_interventions_per_terrain_and_level
     assert terrain_rows([_result(None, 0, 1.0, 0)]) is None  # the plane only: no rows
 
 
+def test_a_clip_sessions_row_reads_no_velocity_tracking():
+    """A session a motion clip commands (``commanded_by: clip``) stands on a zero command for
+    the velocity tracker: its tracked time is no figure of the dance. Its terrain row counts its
+    falls and interventions, and its tracking from the velocity sessions only (n/a, "a clip",
+    for a row of clips alone; it read the clip's 100 % before)."""
+    from sim2real.eval.report.by_terrain import terrain_lines, terrain_rows
+
+    up3 = TerrainDraw("stairs_up", 0.3, 3).to_dict()
+    slope = TerrainDraw("slope_up", 0.5, 5).to_dict()
+    clip = _result(up3, 1, 100.0, 10)
+    clip["locomotion"]["commanded_by"] = "clip"
+    walk = _result(up3, 0, 50.0, 0)
+    dance = _result(slope, 0, 100.0, 0)
+    dance["locomotion"]["commanded_by"] = "clip"
+    slope_row, stairs = terrain_rows([clip, walk, dance])
+    assert stairs["sessions"] == 2 and stairs["falls"] == 1 and stairs["clip_sessions"] == 1
+    assert stairs["tracking_success"] == pytest.approx(0.5)  # the walker's 50 of 100 s
+    assert slope_row["tracking_success"] is None and slope_row["clip_sessions"] == 1
+    lines = terrain_lines([slope_row, stairs])
+    assert any("slope_up@5" in line and "tracking n/a (a clip)" in line for line in lines)
+    assert any("stairs_up@3" in line and "tracking 50.0 %" in line for line in lines)
+
+
 def test_deploy_run_refuses_terrain_off_the_simulated_legged_robot(capsys):
     """--terrain names an unknown kind, an arm, or a hardware backend: refused in one line."""
     from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main

@@ -83,6 +83,46 @@ def test_the_play_log_and_figures_resume_from_the_tasks_state(go2, go2_onnx, tmp
     assert fresh.task.play_log[0][-1]["ticks"] == task.play_log[0][-1]["ticks"]
 
 
+def test_a_session_ending_mid_clip_logs_that_clip_unfinished(go2, go2_onnx, tmp_path):
+    """A soak session whose end falls inside a clip: its exhibition's clips end with that play,
+    ``unfinished``, the share of the clip reached and its ticks judged (it was not logged at
+    all); the heat report counts it neither completed nor a fall; asking changes no state. In
+    the rest between clips there is no open play."""
+    from types import SimpleNamespace
+
+    from sim2real.eval.soak.exhibition import heat_report
+    from sim2real.eval.soak.result import exhibition_result
+
+    rig = _rig(go2, go2_onnx, tmp_path)
+    task, clock = rig.task, rig.task.motion
+    _run(rig, 150)  # RAMP_IN, then plays of 0.3 + 0.2 + 0.2 s
+    while not (task.play_log[0] and 0.1 < clock.time[0] < 0.2):  # a later play, mid-clip
+        _run(rig, 1)
+    session = SimpleNamespace(task=task, e=0, batch=SimpleNamespace(
+        violations=SimpleNamespace(reference_ticks=np.zeros(1, np.int64))))  # fmt: skip
+    logged = copy.deepcopy(task.play_log[0])
+    clips = exhibition_result(session)["clips"]
+    assert clips[:-1] == logged and task.play_log[0] == logged  # nothing changed by asking
+    last = clips[-1]
+    assert last["unfinished"] and not last["stopped"], last
+    assert last["completed"] == pytest.approx(clock.time[0] / clock.length)
+    assert 0.3 < last["completed"] < 0.7 and last["ticks"] > 0 and last["joint_rms_rad"] > 0
+    h = heat_report(clips)
+    assert (h["clips"], h["completed"], h["falls"], h["unfinished"]) == (
+        len(logged) + 1,
+        len(logged),
+        0,
+        1,
+    )
+    from sim2real.eval.report.summary import exhibition_lines
+
+    line = exhibition_lines({"id": "seed0000", "exhibition": exhibition_result(session)})[0]
+    assert f"completed {len(logged)}, falls 0, the last cut short by the session's end" in line
+    while not clock.time[0] > clock.total:  # the rest after the clip and its transition
+        _run(rig, 1)
+    assert task.open_play(0) is None and task.plays(0) == task.play_log[0]
+
+
 @pytest.fixture(scope="module")
 def legged_result(go2_onnx, tmp_path_factory) -> dict:
     """A 7.2-s go2 soak session's result (a velocity-commanded one, to be dressed as a clip's)."""
@@ -160,3 +200,30 @@ def test_the_anchor_is_judged_against_the_true_heading_not_the_estimates(go2, go
 
     straight, turned = anchor(0.0), anchor(0.5)
     assert turned == pytest.approx(straight, abs=1.0), (straight, turned)
+
+
+def test_a_clip_campaign_is_not_judged_on_a_baselines_velocity_tracking(legged_result):
+    """A clip campaign against a velocity-commanded baseline of the same robot (or the other way
+    round): no velocity tracking to compare, so no regression of it (the clip side's None was
+    read as 0, 'tracking success fell from 0.9 to 0.000'); two velocity campaigns still compare."""
+    from sim2real.eval.report.baseline import compare_with_baseline
+    from sim2real.eval.report.build import build_report
+    from sim2real.eval.report.schema import Thresholds
+
+    clip = copy.deepcopy(legged_result)
+    clip["locomotion"]["commanded_by"] = "clip"
+    walk = copy.deepcopy(legged_result)
+    walk["locomotion"]["tracked_s"] = 0.9 * walk["locomotion"]["running_s"]  # a good baseline
+    t = Thresholds()
+    clips, walks = (
+        build_report({"robot": "go2"}, [clip], t),
+        build_report({"robot": "go2"}, [walk], t),
+    )
+    assert walks["totals"]["locomotion"]["tracking_success"] == pytest.approx(0.9)
+    for new, old in ((clips, walks), (walks, clips)):
+        compared = compare_with_baseline(new, old, t)
+        assert not any(m.startswith("locomotion.") for m in compared["compared"]), compared
+    worse = build_report({"robot": "go2"}, [copy.deepcopy(legged_result)], t)
+    worse["totals"]["locomotion"]["tracking_success"] = 0.5
+    metrics = {r["metric"] for r in compare_with_baseline(worse, walks, t)["regressions"]}
+    assert "locomotion.tracking_success" in metrics

@@ -3,8 +3,9 @@
 Every input of a run is read and checked before any of its outputs opens (the telemetry's MCAP,
 the video, the recorded commands, the report): :func:`check_outputs` (each output's folder),
 :func:`check_options` (the values read only once the run is built: ``--command``, ``--size``,
-``--fps``). Should a run be refused or end in an error all the same, :func:`discard` removes what
-it had opened, so that a refused run leaves nothing behind and says why in one line (exit 3).
+``--fps``, ``--motion-fps``). Should a run be refused or end in an error all the same,
+:func:`discard` removes what it had opened, so that a refused run leaves nothing behind and says
+why in one line (exit 3).
 """
 
 from __future__ import annotations
@@ -41,10 +42,11 @@ def check_outputs(args) -> None:
 
 def check_options(args, robot) -> None:
     """Check the options the run reads only once it is built: a legged ``robot``'s
-    ``--command`` (an arm ignores it), ``--video``'s ``--size`` and ``--fps``.
+    ``--command`` (an arm ignores it), ``--video``'s ``--size`` and ``--fps``, ``--motion-fps``.
 
     Raises:
         ValueError: ``--command`` not VX,VY,WZ; a bad ``--size`` or ``--fps`` with ``--video``;
+            ``--motion-fps`` not a number > 0;
             ``--terrain`` off the simulated backend or for a robot without a floating base.
     """
     from sim2real.deploy.tasks.task import follows_velocity_commands
@@ -71,6 +73,23 @@ def check_options(args, robot) -> None:
         parse_size(args.size)
         if not (math.isfinite(args.fps) and args.fps > 0):
             raise ValueError(f"--fps {args.fps:g}: expected frames per second > 0")
+    if getattr(args, "motion_fps", None) is not None:
+        _motion_fps(args.motion_fps)
+
+
+def _motion_fps(value: str) -> float:
+    """``--motion-fps``'s rate, Hz (a finite number > 0); a ValueError naming the flag."""
+    import math
+
+    try:
+        fps = float(value)
+    except ValueError:
+        fps = math.nan
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(
+            f"--motion-fps {value}: expected the clip's frames per second, a number > 0"
+        )
+    return fps
 
 
 def discard(rig=None, telemetry=None, source=None) -> None:

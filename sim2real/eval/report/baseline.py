@@ -5,7 +5,8 @@ Baseline comparison (:func:`compare_with_baseline`, campaign totals; the baselin
 first hours for a shorter run: :func:`violation_basis`) above ``baseline * (1 +
 violation_tolerance) + violation_slack``, an intervention fraction of ticks (any check, or all
 together) above ``baseline * (1 + violation_tolerance) + intervention_slack``, a success rate or a
-minimum window success rate below ``baseline - success_tolerance``, a peak winding temperature
+minimum window success rate below ``baseline - success_tolerance`` (a legged campaign's velocity
+tracking only where a velocity commands sessions on both sides, not a motion clip), a peak winding temperature
 above ``baseline + temperature_tolerance`` (any joint), or more latched faults per simulated hour
 than the baseline. A check that failed in the same sessions of the baseline is a known failure
 (:func:`known_failures`): reported, but not new.
@@ -142,13 +143,21 @@ def _success(c: _Comparison, new: dict, old: dict) -> None:
         if old["goals"][key] is not None:
             c.fell(f"goals.{key}", label, old["goals"][key], new["goals"][key])
     new_loco, old_loco = new.get("locomotion"), old.get("locomotion")
+    if not (_velocity_sessions(new_loco) and _velocity_sessions(old_loco)):
+        return  # a motion clip commands one side's sessions: no velocity tracking to compare
     for key, label in (
         ("tracking_success", "tracking success (legged)"),
         ("yaw_tracking_success", "yaw-rate tracking success (legged)"),
         ("min_window_success_rate", "lowest windowed tracking success (legged)"),
     ):
-        if new_loco and old_loco and old_loco.get(key) is not None:
+        if old_loco.get(key) is not None:
             c.fell(f"locomotion.{key}", label, old_loco[key], new_loco.get(key))
+
+
+def _velocity_sessions(loco: dict | None) -> int:
+    """The legged sessions a velocity commands in ``totals.locomotion`` (its ``clip_sessions``
+    a motion clip commands; 0 without locomotion)."""
+    return 0 if not loco else loco["sessions"] - loco.get("clip_sessions", 0)
 
 
 def _thermal(c: _Comparison, new: dict, old: dict) -> None:

@@ -1,9 +1,10 @@
-"""A soak's results by the ground its sessions walked on (:mod:`sim2real.eval.world.terrain`): one row per
-terrain kind and level (a session's ``randomization.terrain``; the plane's sessions as ``plane``)
-with its falls (count and per hour), tracking success (share of RUNNING time within 0.2 m/s of the
-command), distance and the runtime's interventions (share of ticks), and what the robots did
-there, from the truth (:mod:`sim2real.eval.soak.terrain_figures`, a session's
-``locomotion.on_terrain``): s RUNNING on the tiles' feature (the steps, the slope, the
+"""A soak's results by the ground its sessions walked on (:mod:`sim2real.eval.world.terrain`): one
+row per terrain kind and level (a session's ``randomization.terrain``; the plane's sessions as
+``plane``) with its falls (count and per hour), tracking success (share of RUNNING time within
+0.2 m/s of the command, over the sessions a velocity commands: a motion clip's, counted in
+``clip_sessions``, have none), distance and the runtime's interventions (share of ticks), and
+what the robots did there, from the truth (:mod:`sim2real.eval.soak.terrain_figures`, a
+session's ``locomotion.on_terrain``): s RUNNING on the tiles' feature (the steps, the slope, the
 obstacles), on the central platform and off the tiles, m walked on the feature, crossings out
 (platform to rim) and in (rim to platform), and the falls by the part they happened on.
 report.json's ``totals.by_terrain`` (None when no session had terrain) and the console's lines.
@@ -39,7 +40,9 @@ def terrain_rows(results: list[dict]) -> list[dict] | None:
     ):
         hours = sum(r["simulated_hours"] for r in rs)
         falls = sum(r["locomotion"]["falls"] for r in rs)
-        running = sum(r["locomotion"]["running_s"] for r in rs)
+        # velocity tracking of the sessions a velocity commands (a clip's means nothing)
+        vel = [r for r in rs if r["locomotion"].get("commanded_by", "velocity") == "velocity"]
+        running = sum(r["locomotion"]["running_s"] for r in vel)
         ticks = sum(r["interventions"]["ticks"] for r in rs)
         any_ = sum(r["interventions"]["any"]["count"] for r in rs)
         rows.append(
@@ -51,8 +54,9 @@ def terrain_rows(results: list[dict]) -> list[dict] | None:
                 "simulated_hours": hours,
                 "falls": falls,
                 "falls_per_hour": falls / hours if hours > 0 else 0.0,
+                "clip_sessions": len(rs) - len(vel),
                 "tracking_success": (
-                    sum(r["locomotion"]["tracked_s"] for r in rs) / running if running else None
+                    sum(r["locomotion"]["tracked_s"] for r in vel) / running if running else None
                 ),
                 "distance_m": sum(r["locomotion"]["distance_m"] for r in rs),
                 "interventions_fraction": any_ / ticks if ticks else 0.0,
@@ -84,9 +88,14 @@ def terrain_lines(rows: list[dict] | None) -> list[str]:
     out.append("                feature, crossings out (platform to rim) and in, falls by place)")
     for row in rows:
         ts = row["tracking_success"]
+        clips = row.get("clip_sessions", 0)
+        tracking = (
+            "n/a (a clip)" if ts is None and clips == row["sessions"]
+            else "n/a" if ts is None else f"{100 * ts:.1f} %"
+        )  # fmt: skip
         out.append(
             f"    {row['terrain']:<22} {row['sessions']:>4} sessions, {row['falls']} falls "
-            f"({row['falls_per_hour']:.2f}/h), tracking {'n/a' if ts is None else f'{100 * ts:.1f} %'}"
+            f"({row['falls_per_hour']:.2f}/h), tracking {tracking}"
             f", interventions {100 * row['interventions_fraction']:.2f} % of ticks"
         )
         if row.get("falls_on") is not None:

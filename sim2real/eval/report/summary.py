@@ -264,10 +264,11 @@ def exhibition_lines(s: dict) -> list[str]:
         return f"{min(v):{form}}-{max(v):{form}} {unit}" if v else "n/a"
 
     iv = [c["interventions"] for c in clips]
+    cut = ", the last cut short by the session's end" if h.get("unfinished") else ""
     lines = [
         f"  exhibition   {s['id']}: {h['clips']} clips of {x['clip_s']:.1f} s (then "
         f"{x['stand_s']:g} s to home, {x['rest_s']:g} s standing); completed {h['completed']}, "
-        f"falls {h['falls']}; per clip: joint error {spread('joint_rms_rad', '.3f', 'rad RMS')}, "
+        f"falls {h['falls']}{cut}; per clip: joint error {spread('joint_rms_rad', '.3f', 'rad RMS')}, "
         f"anchor error {spread('anchor_error_deg_mean', '.1f', 'deg mean')}, MPJPE "
         f"{spread('mpjpe_mm', '.1f', 'mm')}, guard interventions "
         f"{min(iv, default=0)}-{max(iv, default=0)} ticks"

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.executors import default_workers, run_local, run_sessions
+from sim2real.eval.soak.exhibition import check_exhibition
 from sim2real.eval.soak.ray_executor import run_ray
 from sim2real.eval.soak.result import check_result, read_result
 from sim2real.eval.soak.session import SESSIONS_DIR, SessionConfig, SessionError, session_dir
@@ -161,6 +162,7 @@ def run_campaign(
     with opened_files() if executor == "ray" else contextlib.nullcontext(set()) as opened:
         robot = load_robot(template.robot)
         policy = template.load_policy(robot)
+    check_exhibition(policy, robot, template)  # a clip that does not fit: refused, nothing written
     configs = [replace(template, seed=template.seed + i) for i in range(sessions)]
     if not resume:
         for c in configs:

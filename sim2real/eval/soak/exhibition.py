@@ -29,11 +29,22 @@ def exhibition_task(task: dict, policy, robot, envs: int, config) -> None:
         task.update(task="tracking", motion=motion)
 
 
+def check_exhibition(policy, robot, config) -> None:
+    """Read the clip :func:`exhibition_task` would play, on the driver before the campaign
+    writes anything (a refusal leaves no ``sessions/`` folder and removes no earlier session).
+
+    Raises:
+        sim2real.deploy.tasks.motion.clip.ClipError: a clip that does not fit (one line).
+    """
+    exhibition_task({}, policy, robot, 1, config)
+
+
 def heat_report(plays: list[dict]) -> dict:
     """The heat report of one session's ``plays`` (the tracking task's play log, in order).
 
     Returns:
-        ``clips`` (played), ``completed`` (not ended by a stop), ``falls`` (plays a stop ended),
+        ``clips`` (played), ``completed`` (not ended by a stop nor cut short), ``falls`` (plays
+        a stop ended), ``unfinished`` (the play the session's end cut short: 0 or 1),
         ``derating`` {winding: the 1-based clip in which it first passed its derating start},
         ``first_derated_clip`` (or None), ``joint_rms_rad_before`` / ``joint_rms_rad_derated``
         (mean over the clips before the first derated one / from it on; None without such
@@ -56,8 +67,9 @@ def heat_report(plays: list[dict]) -> dict:
     top = sorted(hottest.items(), key=lambda kv: -kv[1])[:5]
     return {
         "clips": len(plays),
-        "completed": sum(1 for p in plays if not p["stopped"]),
+        "completed": sum(1 for p in plays if not (p["stopped"] or p.get("unfinished"))),
         "falls": sum(1 for p in plays if p["stopped"]),
+        "unfinished": sum(1 for p in plays if p.get("unfinished")),
         "derating": dict(sorted(first.items(), key=lambda kv: kv[1])),
         "first_derated_clip": start,
         "joint_rms_rad_before": mean_rms(plays[:cut]),

@@ -133,7 +133,7 @@ def exhibition_result(session: Session) -> dict:
     from sim2real.eval.soak.exhibition import heat_report
 
     task, e = session.task, session.e
-    plays = task.play_log[e]
+    plays = task.plays(e)  # with the clip the session's end cut short (unfinished)
     return {
         "clip": str(task.motion.clip.source),
         "clip_s": task.motion.length,

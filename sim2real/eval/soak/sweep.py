@@ -10,7 +10,8 @@ domain's pushes (pushes are a quantity of their own: with a push every few secon
 each level would measure the pushes). A **reference** at those ranges comes first. A level
 **holds** when its sessions fell at most ``FALL_ALLOWANCE`` times more than the reference's (a
 policy that falls now and then in its own world falls at random in any short run) and their
-success (a legged robot's tracking, an arm's goals) is within ``TOLERANCE`` of the reference's. A
+success (a legged robot's tracking, or the share of its clips no stop ended where a motion clip
+commands it; an arm's goals) is within ``TOLERANCE`` of the reference's. A
 quantity's **margin** is its last level that holds with every milder level holding too (None: not
 even the first). Where the reference itself falls more than ``FALL_ALLOWANCE`` times, the policy
 does not hold in its own world: no margin is given (``reference.holds`` False).
@@ -144,11 +145,21 @@ QUANTITIES = (
 )
 
 
-def _success(result: dict) -> float | None:
+def session_success(result: dict) -> float | None:
+    """A sweep session's success (module docstring): an arm's goal success rate; a legged
+    robot's velocity tracking success; for a session a motion clip commands (``locomotion.
+    commanded_by`` ``clip``: its velocity tracker read a zero command), the share of its clips
+    no stop ended (its ``exhibition`` section: the one the session's end cut short counts as not
+    ended by a stop), None before any clip started."""
     loco = result.get("locomotion")
-    if loco is not None:
+    if loco is None:
+        return result["goals"]["success_rate"]
+    if loco.get("commanded_by") != "clip":
         return loco["tracking_success"]
-    return result["goals"]["success_rate"]
+    clips = (result.get("exhibition") or {}).get("clips") or []
+    if not clips:
+        return None
+    return sum(1 for c in clips if not c["stopped"]) / len(clips)
 
 
 def _falls(result: dict) -> int:
@@ -241,7 +252,10 @@ def run_sweep(
         for future in concurrent.futures.as_completed(futures):
             runs[futures[future]].append(future.result())
     results = {
-        key: {"success": _mean([_success(r) for r in rs]), "falls": sum(_falls(r) for r in rs)}
+        key: {
+            "success": _mean([session_success(r) for r in rs]),
+            "falls": sum(_falls(r) for r in rs),
+        }
         for key, rs in runs.items()
     }
     applies = {q.name: _applies(q, robot) for q in quantities}

@@ -103,7 +103,7 @@ def read(facts) -> ForeignContract:
     groups = get("algo", "config", "module_dict", "actor", "input_dim", default=["actor_obs"])
     terms = _observation_terms(get, groups, fail)
     sim = get("simulator", "config", "sim", default={})
-    rate = sim["fps"] / sim["control_decimation"] if "fps" in sim else None
+    rate = _rate(sim, fail) if "fps" in sim else None
     missing = [] if kd else ["kd: not recorded; the robot's robot.toml damping is used"]
     if rate is None:
         missing.append("control rate: not recorded (the robot's is used)")
@@ -151,6 +151,28 @@ def _config_reader(ec: dict, fail):
         return node
 
     return get
+
+
+def _rate(sim: dict, fail) -> float:
+    """The control rate, Hz: ``simulator.config.sim``'s ``fps`` (physics steps per s) over its
+    ``control_decimation`` (steps a policy tick), each a number > 0 (a fail naming the key)."""
+    import math
+
+    values = []
+    for key, kind in (("fps", (int, float)), ("control_decimation", (int,))):
+        value = sim.get(key)
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, kind)
+            or not (math.isfinite(value) and value > 0)
+        ):
+            expected = "a number > 0" if key == "fps" else "a whole number > 0"
+            raise fail(
+                f"metadata 'experiment_config': 'simulator.config.sim.{key}': expected "
+                f"{expected}, got {value!r}"
+            )
+        values.append(value)
+    return values[0] / values[1]
 
 
 def _position_control(get, fail) -> dict:

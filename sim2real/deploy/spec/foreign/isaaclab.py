@@ -68,6 +68,21 @@ def detect(facts) -> bool:
     return bool(facts.inputs) and facts.inputs[0] == "obs" and "actions" in facts.outputs
 
 
+def _positive(value, kind, where: str, unit: str, fail):
+    """``value`` (env.yaml's ``sim.dt``, s, or ``decimation``) as a number of ``kind`` above 0:
+    the control period is their product and the rate its inverse. Raises ``fail``'s error naming
+    the file and key (a bool, a string, 0 or below, not finite)."""
+    import math
+
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, kind)
+        or not (math.isfinite(value) and value > 0)
+    ):
+        raise fail(f"{where}: expected a number of {unit} > 0, got {value!r}")
+    return value
+
+
 def _load_yaml(path: Path, fail):
     import yaml
 
@@ -133,7 +148,9 @@ def read(facts) -> ForeignContract:
     gains, missing, notes = _gains(robot)
     missing.insert(0, f"joint order: {ORDER_NOTE}")
     clip = _action_clip(action, env_path, fail)
-    dt, decimation = get(env, "sim", "dt"), get(env, "decimation")
+    dt = _positive(get(env, "sim", "dt"), (int, float), f"{where}: 'sim.dt'", "seconds", fail)
+    decimation = _positive(get(env, "decimation"), (int,), f"{where}: 'decimation'",
+                           "physics steps (a whole number)", fail)  # fmt: skip
     found = [
         ("env.yaml", where),
         ("observations.policy", ", ".join(t.name for t in terms)),
@@ -156,7 +173,7 @@ def read(facts) -> ForeignContract:
         action_clip=clip,
         kp=gains[0],
         kd=gains[1],
-        control_rate=1.0 / (float(dt) * int(decimation)),
+        control_rate=1.0 / (float(dt) * decimation),
         found=found,
         missing=missing,
         notes=notes,

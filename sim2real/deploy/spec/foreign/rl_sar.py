@@ -134,7 +134,8 @@ def read(facts) -> ForeignContract:
         terms = tuple(
             Term(**{**t.__dict__, "history": length}) for t in terms
         )  # every term reads the same frames
-    period = float(get("dt", (int, float))) * int(get("decimation", (int,)))
+    dt = float(keys.positive("dt", (int, float), "a number of seconds"))
+    period = dt * int(keys.positive("decimation", (int,), "a whole number of physics steps"))
     names = keys.slot_names(slots)
     policy_names = None if names is None else [names[s] for s in slots]
     notes = _notes(slots, policy_names, merged, key, facts.path.name, wheels)
@@ -212,6 +213,14 @@ class _Keys:
             raise self.fail(
                 f"{self._file(name)}: '{name}': expected a {kind[0].__name__}, got {value!r}"
             )
+        return value
+
+    def positive(self, name: str, kind, expected: str) -> float:
+        """A number above 0 (``dt``, s; ``decimation``, ticks): the control period is their
+        product and the rate its inverse, so 0 or below is refused naming the file and key."""
+        value = self.get(name, kind)
+        if not value > 0:
+            raise self.fail(f"{self._file(name)}: '{name}': expected {expected} > 0, got {value!r}")
         return value
 
     def joints(self, name: str) -> tuple[float, ...]:

@@ -43,6 +43,11 @@ class MotionClip:
             for a CSV clip.
         body_pos_w: (T, B, 3) their positions, m, world frame.
         body_quat_w: (T, B, 4) their orientations, ``w x y z``, world frame.
+        stated: ``(frames, Hz)`` as the source stack states and plays the clip, where the frames
+            here are not its own (holosoma's WBT ONNX: the graph's T frames, one a tick at its
+            ``rl_rate``, carried here as T + 1 frames at ``rl_rate x (T + 1) / T`` Hz,
+            :mod:`sim2real.deploy.tasks.motion.onnx_holosoma`); None: ``frames`` and ``fps``.
+            What a report names the clip by (:attr:`shown`).
 
     Raises:
         ClipError: from the constructor: a field whose shape disagrees with the others, a
@@ -59,6 +64,7 @@ class MotionClip:
     body_names: tuple[str, ...] = ()
     body_pos_w: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
     body_quat_w: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 4)))
+    stated: tuple[int, float] | None = None
 
     def __post_init__(self) -> None:
         def refuse(name: str, expected: str) -> ClipError:
@@ -102,6 +108,11 @@ class MotionClip:
     def frames(self) -> int:
         """T, the number of frames."""
         return self.joint_pos.shape[0]
+
+    @property
+    def shown(self) -> tuple[int, float]:
+        """``(frames, Hz)`` as its stack states them (``stated``), else ``(frames, fps)``."""
+        return self.stated if self.stated is not None else (self.frames, self.fps)
 
     @property
     def duration(self) -> float:

@@ -63,7 +63,8 @@ def read_holosoma_onnx_motion(
             the robot's names). limits: ``{joint: (low, high)}`` rad, the robot's hard limits.
 
     Returns:
-        A :class:`MotionClip` of T + 1 frames at ``rate x (T + 1) / T`` Hz (module docstring).
+        A :class:`MotionClip` of T + 1 frames at ``rate x (T + 1) / T`` Hz (module docstring),
+        ``stated`` as holosoma_inference plays it: T frames at ``rate`` Hz.
 
     Raises:
         ClipError: one line naming the file and field: not an ONNX model, a table missing or
@@ -119,4 +120,5 @@ def read_holosoma_onnx_motion(
         joint_vel=lagged(t["joint_vel"]),
         root_pos=lagged(t["ref_pos_xyz"]),
         root_quat=lagged(root / np.linalg.norm(root, axis=-1, keepdims=True)),
+        stated=(frames, float(rate)),  # holosoma_inference's: T frames, one a tick at rl_rate
     )

@@ -78,7 +78,8 @@ class TrackingTask:
             ``stopped`` (a stop ended it), ``joint_rms_rad``, ``anchor_error_deg_mean``,
             ``mpjpe_mm`` (None for a play with no judged tick), ``ticks``, ``interventions`` and
             ``safety_interventions`` (ticks, while the clip and its transition played),
-            ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``).
+            ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``). A play the
+            run's end cut short is no entry of it: :meth:`plays` adds it (``unfinished``).
     """
 
     name = "tracking"
@@ -240,19 +241,38 @@ class TrackingTask:
 
     def _log_play(self, e: int, stopped: bool) -> None:
         """Close env ``e``'s play into :attr:`play_log` and start a new one."""
+        self.play_log[e].append(self._play_entry(e, stopped, not stopped))
+        self._play[e] = 0.0
+        self._peak[e] = -np.inf
+
+    def open_play(self, e: int) -> dict | None:
+        """Env ``e``'s play still open when the run or session ends (the clip or its transition
+        playing, a tick of it judged), as :attr:`play_log` logs a play with ``unfinished``
+        True and ``completed`` the share of the clip reached; None without one. Changes no
+        state (a checkpoint taken after it resumes the same play)."""
+        if np.isnan(self.motion.time[e]) or self._play[e, 1] <= 0:
+            return None
+        return {**self._play_entry(e, False, False), "unfinished": True}
+
+    def plays(self, e: int) -> list[dict]:
+        """Env ``e``'s plays: :attr:`play_log`, then :meth:`open_play` if any."""
+        open_ = self.open_play(e)
+        return self.play_log[e] + ([] if open_ is None else [open_])
+
+    def _play_entry(self, e: int, stopped: bool, whole: bool) -> dict:
+        """Env ``e``'s play so far as :attr:`play_log` logs it; ``whole``: its clip played to
+        the end (``completed`` 1), else the share its clock reached."""
         sq, ticks, any_, safety, anchor, mpjpe = self._play[e]
         t = self.motion.time[e]
-        done = 1.0 if not stopped else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
-        self.play_log[e].append({
+        done = 1.0 if whole else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
+        return {
             "completed": done, "stopped": stopped,
             "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
             "anchor_error_deg_mean": float(anchor / ticks) if ticks else None,
             "mpjpe_mm": float(mpjpe / ticks) if ticks else None,
             "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
             "end_s": float(self._clock_now), **self._play_heat(e),
-        })  # fmt: skip
-        self._play[e] = 0.0
-        self._peak[e] = -np.inf
+        }  # fmt: skip
 
     def _play_heat(self, e: int) -> dict:
         """Env ``e``'s play: its hottest winding (degC) and the windings past their derating
@@ -317,8 +337,8 @@ class TrackingTask:
         clip = self.motion.clip
         return {
             "clip": str(clip.source),
-            "frames": clip.frames,
-            "fps": clip.fps,
+            "frames": clip.shown[0],  # as its stack states them (MotionClip.stated)
+            "fps": clip.shown[1],
             "length_s": self.motion.length,
             "playback": self.motion.playback,
             "plays": int(self.motion.plays.sum()),
@@ -338,7 +358,7 @@ class TrackingTask:
             "stand_s": self.motion.stand_s if self.motion.home is not None else None,
             "end_from_home_rad_rms": self._from_home(),
             "reference_contacts": self.contacts.summary(),
-            "plays_logged": [p for log in self.play_log for p in log],
+            "plays_logged": [p for e in range(self.envs) for p in self.plays(e)],
         }
 
     def report(self, runtime) -> dict:

@@ -15,6 +15,21 @@ from dataclasses import dataclass
 
 from sim2real.deploy.spec.policy_spec import SpecError
 
+
+def positive_number(value, kind) -> bool:
+    """Whether ``value`` is a number of ``kind`` (``(int, float)`` or ``(int,)``), finite and above
+    0, not a bool: a control rate's factors (``dt``, ``fps``, a decimation), whose product or ratio
+    a reader divides by."""
+    import math
+
+    return (
+        not isinstance(value, bool)
+        and isinstance(value, kind)
+        and math.isfinite(value)
+        and value > 0
+    )
+
+
 #: A per-joint quantity: one number for every joint, one per joint in the policy's joint order, or
 #: a table of regular expressions (matched whole, as Isaac Lab's ``resolve_matching_names_values``
 #: matches them) to values.

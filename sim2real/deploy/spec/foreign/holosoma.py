@@ -36,7 +36,12 @@ import dataclasses
 import json
 import math
 
-from sim2real.deploy.spec.foreign.contract import ForeignContract, Term, command_ranges
+from sim2real.deploy.spec.foreign.contract import (
+    ForeignContract,
+    Term,
+    command_ranges,
+    positive_number,
+)
 from sim2real.deploy.spec.foreign.holosoma_loco import (
     PHASE_TERMS,
     STAND_BELOW,
@@ -156,16 +161,10 @@ def _config_reader(ec: dict, fail):
 def _rate(sim: dict, fail) -> float:
     """The control rate, Hz: ``simulator.config.sim``'s ``fps`` (physics steps per s) over its
     ``control_decimation`` (steps a policy tick), each a number > 0 (a fail naming the key)."""
-    import math
-
     values = []
     for key, kind in (("fps", (int, float)), ("control_decimation", (int,))):
         value = sim.get(key)
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, kind)
-            or not (math.isfinite(value) and value > 0)
-        ):
+        if not positive_number(value, kind):
             expected = "a number > 0" if key == "fps" else "a whole number > 0"
             raise fail(
                 f"metadata 'experiment_config': 'simulator.config.sim.{key}': expected "

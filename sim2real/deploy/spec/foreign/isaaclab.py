@@ -36,6 +36,7 @@ from sim2real.deploy.spec.foreign.contract import (
     ForeignContract,
     Term,
     clip_before_scaling,
+    positive_number,
 )
 from sim2real.deploy.spec.foreign.isaaclab_scan import FUNCTION as SCAN
 from sim2real.deploy.spec.foreign.isaaclab_scan import height_scan_term
@@ -72,13 +73,7 @@ def _positive(value, kind, where: str, unit: str, fail):
     """``value`` (env.yaml's ``sim.dt``, s, or ``decimation``) as a number of ``kind`` above 0:
     the control period is their product and the rate its inverse. Raises ``fail``'s error naming
     the file and key (a bool, a string, 0 or below, not finite)."""
-    import math
-
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, kind)
-        or not (math.isfinite(value) and value > 0)
-    ):
+    if not positive_number(value, kind):
         raise fail(f"{where}: expected a number of {unit} > 0, got {value!r}")
     return value
 

@@ -39,7 +39,7 @@ from sim2real.deploy.core.attitude import projected_gravity
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.estimation.fall import FALL_TILT
 from sim2real.deploy.monitors.estimation import TRUE_FALL_HEIGHT
-from sim2real.eval.soak.falls import UPRIGHT_HEIGHT_SHARE, UPRIGHT_SINK_SPEED, UPRIGHT_TILT_SHARE
+from sim2real.eval.soak.falls import upright
 from sim2real.eval.world.pushes import DomainPushes, PushRanges
 
 #: s, the gait phase's period in unitree's deploy_mujoco.py (H1, H1-2, G1)
@@ -165,14 +165,12 @@ def quiet(t: float, pushes: list) -> bool:
 
 
 def true_upright(robot, position_z: float, quaternion: np.ndarray, vz: float = 0.0) -> bool:
-    """Whether the true base is upright as the soak's ``false_fall_stops`` judges a stop: tilted
-    under ``UPRIGHT_TILT_SHARE`` of the fall tilt, at least ``UPRIGHT_HEIGHT_SHARE`` of the
-    standing height high, and not sinking at ``UPRIGHT_SINK_SPEED`` or faster (``vz``: m/s, the
-    true base's vertical velocity; a level base collapsing vertically is a fall)."""
+    """Whether the true base is upright as the soak's ``false_fall_stops`` judges a stop
+    (:func:`sim2real.eval.soak.falls.upright`; ``vz``: m/s, the true base's vertical
+    velocity)."""
     limit = robot.config.safety.fall_tilt or FALL_TILT
-    high = position_z >= UPRIGHT_HEIGHT_SHARE * robot.config.base.standing_height
-    sinking = vz <= -UPRIGHT_SINK_SPEED
-    return bool(high and not sinking and _tilt(quaternion) < UPRIGHT_TILT_SHARE * limit)
+    standing = robot.config.base.standing_height
+    return bool(upright(_tilt(quaternion), position_z, vz, limit, standing))
 
 
 def unitree_observation(cfg: dict, qpos, qvel, last_action, t: float, command) -> np.ndarray:

@@ -136,27 +136,35 @@ def fall_replays(falls: list[dict]) -> dict[str, int]:
     return out
 
 
+def upright(
+    tilt_rad: float, height_m: float, vz_m_s: float, tilt_limit: float, standing_height: float
+) -> bool:
+    """Whether a base at a stop was upright, not falling: tilted under ``UPRIGHT_TILT_SHARE``
+    of ``tilt_limit`` (rad, the fall check's), at least ``UPRIGHT_HEIGHT_SHARE`` of
+    ``standing_height`` (m) high and not sinking at ``UPRIGHT_SINK_SPEED`` or faster
+    (``vz_m_s``, m/s world: a base collapsing vertically, level but going down, is a fall). The
+    one rule of the soak's :func:`false_fall_stops` and the push benchmark's upright stops."""
+    return (
+        tilt_rad < UPRIGHT_TILT_SHARE * tilt_limit
+        and height_m >= UPRIGHT_HEIGHT_SHARE * standing_height
+        and vz_m_s > -UPRIGHT_SINK_SPEED
+    )  # fmt: skip
+
+
 def false_fall_stops(falls: list[dict], standing_height: float, tilt_limit: float) -> int:
     """How many of ``falls`` (the tracker's records) are fall-check stops (cause ``fall``) of
-    a robot that was not falling: the simulator's truth at the stop has the base tilted under
-    ``UPRIGHT_TILT_SHARE`` of ``tilt_limit`` (rad, the fall check's) and at least
-    ``UPRIGHT_HEIGHT_SHARE`` of ``standing_height`` (m) high and not sinking at
-    ``UPRIGHT_SINK_SPEED`` or faster (``true_tilt_deg``, ``true_height_m``, ``true_vz_m_s``: a
-    base collapsing vertically, level but going down, is a true fall), unless a replay without
-    the stop fell anyway (``would_fall``). A record without the truth (hardware) is not
-    counted; one without ``true_vz_m_s`` (written before it was recorded) is judged by tilt and
-    height alone."""
+    a robot that was not falling: the simulator's truth at the stop (``true_tilt_deg``,
+    ``true_height_m``, ``true_vz_m_s``) :func:`upright`, unless a replay without the stop fell
+    anyway (``would_fall``). A record without the truth (hardware) is not counted; one without
+    ``true_vz_m_s`` (written before it was recorded) is judged by tilt and height alone."""
     import math
 
-    tilt_deg = math.degrees(UPRIGHT_TILT_SHARE * tilt_limit)
-    height = UPRIGHT_HEIGHT_SHARE * standing_height
     return sum(
         1
         for f in falls
         if f.get("cause") == "fall"
         and "true_tilt_deg" in f
-        and f["true_tilt_deg"] < tilt_deg
-        and f["true_height_m"] >= height
-        and f.get("true_vz_m_s", 0.0) > -UPRIGHT_SINK_SPEED
+        and upright(math.radians(f["true_tilt_deg"]), f["true_height_m"],
+                    f.get("true_vz_m_s", 0.0), tilt_limit, standing_height)
         and not f.get("would_fall", False)
-    )
+    )  # fmt: skip

@@ -45,6 +45,25 @@ def _clip(dance: Path) -> str:
     return next(iter(doc.values()))["motion_file"]
 
 
+def _motion_argv(robot, policy, clip) -> list[str]:
+    """deploy-run's arguments for ``policy`` on ``robot`` in simulation, playing ``clip``."""
+    return [
+        "--backend",
+        "sim",
+        "--robot",
+        str(robot),
+        "--policy",
+        str(policy),
+        "--motion",
+        str(clip),
+    ]
+
+
+def _errors(capsys) -> list[str]:
+    """The lines of the captured standard error that say ``error``."""
+    return [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+
+
 @pytest.fixture(params=["generated", pytest.param("rl_sar", marks=pytest.mark.stacks)])
 def dance(request, tmp_path) -> Path:
     """A tracking folder: one written as rl_sar writes its dances (``tests/rl_sar_files.py``: on
@@ -335,16 +354,7 @@ def test_a_beyondmimic_npz_of_the_dance_plays_through_deploy_run(g1_dance, stack
     dance = dance_folder(stacks, tmp_path)
     npz = csv_to_npz(_rows(dance / _clip(dance)), tmp_path / "dance_102.npz")
     report = tmp_path / "r.json"
-    argv = [
-        "--backend",
-        "sim",
-        "--robot",
-        str(robot),
-        "--policy",
-        str(policy),
-        "--motion",
-        str(npz),
-    ]
+    argv = _motion_argv(robot, policy, npz)
     assert deploy_run_main([*argv, "--duration", "4", "--report", str(report)]) == 0
     t = json.loads(report.read_text())["tracking"]
     assert json.loads(report.read_text())["locomotion"]["falls"] == 0 and t["plays"] == 1
@@ -380,18 +390,9 @@ def test_deploy_run_refuses_a_clip_no_format_recognises_in_one_line(g1_dance, tm
     robot, policy = g1_dance
     clip = tmp_path / "take.bvh"
     clip.write_text("HIERARCHY\n")
-    argv = [
-        "--backend",
-        "sim",
-        "--robot",
-        str(robot),
-        "--policy",
-        str(policy),
-        "--motion",
-        str(clip),
-    ]
+    argv = _motion_argv(robot, policy, clip)
     assert deploy_run_main([*argv, "--duration", "1"]) == 3
-    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    err = _errors(capsys)
     assert len(err) == 1 and f"{clip}: format: no clip format recognises it" in err[0], err
     assert "beyondmimic_npz (.npz)" in err[0] and "rl_sar_csv (.csv)" in err[0]
 
@@ -438,18 +439,9 @@ def test_deploy_run_refuses_a_clip_of_another_robot_in_one_line(g1_dance, tmp_pa
     robot, policy = g1_dance
     rows = _small(joints=23, frames=4)
     clip = _csv(tmp_path / "g1_23dof.csv", rows)
-    argv = [
-        "--backend",
-        "sim",
-        "--robot",
-        str(robot),
-        "--policy",
-        str(policy),
-        "--motion",
-        str(clip),
-    ]
+    argv = _motion_argv(robot, policy, clip)
     assert deploy_run_main([*argv, "--duration", "1"]) == 3
-    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    err = _errors(capsys)
     assert len(err) == 1 and f"{clip}: row 1: expected 36 columns" in err[0], err
 
 
@@ -461,7 +453,7 @@ def test_a_motion_fps_not_above_zero_is_refused_naming_the_flag(go2_onnx, fps, c
 
     argv = ["--backend", "sim", "--robot", "go2", "--policy", str(go2_onnx), "--duration", "0.1"]
     assert deploy_run_main([*argv, "--motion-fps", fps]) == 3
-    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    err = _errors(capsys)
     assert err == [
         f"deploy-run: error: --motion-fps {fps}: expected the clip's frames per second, "
         "a number > 0"
@@ -476,7 +468,7 @@ def test_a_motion_fps_of_zero_for_the_dance_names_the_flag(g1_dance, capsys):
     robot, policy = g1_dance
     argv = ["--backend", "sim", "--robot", str(robot), "--policy", str(policy)]
     assert deploy_run_main([*argv, "--duration", "0.1", "--motion-fps", "0"]) == 3
-    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    err = _errors(capsys)
     assert len(err) == 1 and "--motion-fps 0: expected" in err[0] and "> 0" in err[0], err
 
 

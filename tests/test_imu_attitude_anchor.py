@@ -225,3 +225,18 @@ def test_the_clip_is_aligned_to_and_judged_against_the_sensed_heading(go2, go2_o
     turned = quat_multiply(axis_quat(2, 1.0), anchors[0.0])
     assert min(np.abs(turned - anchors[1.0]).max(), np.abs(turned + anchors[1.0]).max()) < 0.02
     assert judged[1.0] == pytest.approx(judged[0.0], abs=0.5), judged
+
+
+def test_the_heading_drift_resumes_from_the_plants_state_dict(go2):
+    """The heading's rate bias and error are the plant's state: a plant of another seed loaded
+    with the first's state dict reports the same attitudes after (a soak's resume)."""
+    first = _drifting(go2, 2, 0.02, 0.01, seed=1)
+    _read_errors(first, 20)
+    saved = first.state_dict()
+    assert "imu/heading_error" in saved and "imu/heading_rate" in saved
+    again = _drifting(go2, 2, 0.03, 0.02, seed=9)
+    again.load_state_dict(saved)
+    np.testing.assert_array_equal(again.base_sensors.heading_rate, first.base_sensors.heading_rate)
+    a, _ = _read_errors(first, 30)
+    b, _ = _read_errors(again, 30)
+    np.testing.assert_array_equal(a, b)

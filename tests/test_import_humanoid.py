@@ -188,6 +188,12 @@ def test_mjcf_with_a_free_joint_imports_as_a_floating_base(humanoid):
     # effort limits from the MJCF's actuatorfrcrange; velocity limits from the motors
     np.testing.assert_array_equal(robot.effort_limit, [200, 200, 300, 40] * 2)
     np.testing.assert_array_equal(robot.velocity_limit, [23, 23, 14, 9] * 2)
+    # its IMU sends its own attitude, whose heading drifts as the MTi-3's (10 deg/h, 0.007
+    # deg/s/sqrt(Hz)): the source of a tracking policy's anchor (docs/motion-tracking.md)
+    imu = robot.config.sensors.imu
+    assert imu.orientation_sigma > 0
+    assert imu.heading_rate_sigma == pytest.approx(np.radians(10.0) / 3600, rel=0.01)
+    assert imu.heading_walk == pytest.approx(np.radians(0.007), rel=0.01)
 
 
 def test_the_imported_robot_toml_cites_no_document_the_reader_does_not_have(humanoid):

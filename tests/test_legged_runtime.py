@@ -220,14 +220,17 @@ def test_base_estimate_and_gait_clock_survive_state_dict(go2, stand_policy):
     rt.run(40)
     saved = rt.state_dict()
     assert "base_estimator/gyro_bias" in saved and "state/base/projected_gravity" in saved
+    assert "state/sensed_orientation" in saved  # go2's IMU sends its own attitude
     rt.run(30)
     expected = (rt.command.copy(), rt.state.base.orientation.copy(), rt.state.clock.copy())
+    sensed = rt.state.sensed_orientation.copy()
     again, _ = runtime(go2, stand_policy, seed=11)  # other noise: the state must replace it
     again.load_state_dict(saved)
     again.run(30)
     np.testing.assert_array_equal(again.command, expected[0])
     np.testing.assert_array_equal(again.state.base.orientation, expected[1])
     np.testing.assert_array_equal(again.state.clock, expected[2])
+    np.testing.assert_array_equal(again.state.sensed_orientation, sensed)
 
 
 def test_shipped_go2_walks_at_the_commanded_speed_through_the_runtime(tmp_path):

@@ -5,7 +5,8 @@
 Two Go2 plants of the same seed step the same commands, one with the model as it is, one with
 ``compiled = False`` (numpy's sample and read); every frame, the sensor state and the streams'
 next draws must be equal, under settings that reach every branch: dropout, latencies, an IMU and
-contacts slower than the control rate, no onboard attitude, per-env streams, an env reset alone,
+contacts slower than the control rate, no onboard attitude, a drifting onboard heading, per-env
+streams, an env reset alone,
 a new model for an env, a copy of the plant. Tolerance: none.
 """
 
@@ -31,6 +32,10 @@ def settings(sensors, case: str) -> None:
         sensors.imu_every, sensors.contact_every = 2, 3
     if case == "no_attitude":
         sensors.has_orientation = False
+    if case in ("heading", "streams"):  # the onboard heading's drift and walk
+        sensors.has_heading = True
+        sensors.heading_rate_sigma[:] = (0.01, 0.02)
+        sensors.heading_walk[:] = (0.005, 0.01)
     sensors.gyro_bias_walk[:] = (0.01, 0.03)  # a walk large enough to see
     sensors.force_noise_sigma[1] = 5.0
 
@@ -62,7 +67,9 @@ def assert_same(a: dict, b: dict, when: str) -> None:
         )
 
 
-@pytest.mark.parametrize("case", ["default", "dropout", "slow", "no_attitude", "streams"])
+@pytest.mark.parametrize(
+    "case", ["default", "dropout", "slow", "no_attitude", "heading", "streams"]
+)
 def test_compiled_sensors_equal_numpy(go2, case, monkeypatch):
     from sim2real.deploy.backends.sim import legged_sensors
 

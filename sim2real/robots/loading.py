@@ -393,7 +393,10 @@ HASH_EXCLUDED = {
     "safety": {"link_length_tolerance"},
     # the plant's motor, not the policy's contract
     "motors": {"__all__": {"command_delay", "position_target"}},
-    "sensors": {"velocity_noise_sigma": True, "imu": {"orientation_sigma", "orientation_tau"}},
+    "sensors": {
+        "velocity_noise_sigma": True,
+        "imu": {"orientation_sigma", "orientation_tau", "heading_rate_sigma", "heading_walk"},
+    },
 }
 
 

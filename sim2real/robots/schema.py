@@ -217,6 +217,23 @@ class ImuConfig(_Strict):
     # no attitude. Out of the description hash (an estimator input, not a policy's).
     orientation_sigma: NonNegative | None = None  # rad
     orientation_tau: Positive = 1.0  # s
+    # Its heading (yaw about gravity), which a 6-axis AHRS (no magnetometer: Unitree's, per
+    # unitree_legged_sdk issue #38) integrates from its gyroscope: the yaw error grows by a
+    # residual yaw-rate bias the filter could not calibrate away (drawn at turn-on, standard
+    # deviation heading_rate_sigma rad/s, then held) and an angle random walk (heading_walk
+    # rad/sqrt(s)); it starts at 0. None: the attitude's heading is the true one. Needs
+    # orientation_sigma. Out of the description hash.
+    heading_rate_sigma: NonNegative | None = None  # rad/s
+    heading_walk: NonNegative = 0.0  # rad/sqrt(s)
+
+    @model_validator(mode="after")
+    def _heading_needs_attitude(self) -> ImuConfig:
+        if self.heading_rate_sigma is not None and self.orientation_sigma is None:
+            raise ValueError(
+                "heading_rate_sigma needs orientation_sigma (a heading is part of the IMU's "
+                "own attitude, which orientation_sigma turns on)"
+            )
+        return self
 
 
 class ContactConfig(_Strict):

@@ -84,6 +84,11 @@ class RobotState:
         height_scan: A policy with a ``height_scan`` block: (envs, points) m, the sensor's
             height above the terrain at each point of its scan, the last map that arrived
             (:class:`sim2real.deploy.runtime.height_map.HeightMap`); else None.
+        sensed_orientation: A floating base whose IMU sends its own attitude (robot.toml
+            ``[sensors.imu] orientation_sigma`` set): (envs, 4) the base-to-world unit
+            quaternion ``[w, x, y, z]`` that attitude gives (the IMU site's turned into the
+            base's; the IMU's own heading, not the estimator's), the last reading that arrived
+            (:class:`sim2real.deploy.kinds.legged_tick.LeggedTick`); else None.
     """
 
     q: np.ndarray
@@ -98,6 +103,7 @@ class RobotState:
     clock: np.ndarray | None = None
     motion: np.ndarray | None = None
     height_scan: np.ndarray | None = None
+    sensed_orientation: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, envs: int, n_joints: int, ambient: float = 25.0) -> RobotState:

@@ -22,6 +22,13 @@ from sim2real.deploy.kinds.targets import DriveTargets, uniform_targets
 from sim2real.deploy.robot_kind import RobotKind, register_kind
 
 
+def sends_attitude(robot) -> bool:
+    """Whether ``robot``'s IMU sends its own attitude (robot.toml ``[sensors.imu]
+    orientation_sigma`` set: an AHRS, as Unitree's G1 and H1 ``imu_state.quaternion``)."""
+    imu = robot.config.sensors.imu
+    return imu is not None and imu.orientation_sigma is not None
+
+
 @dataclass(frozen=True)
 class Legged(RobotKind):
     """:class:`~sim2real.deploy.robot_kind.RobotKind` of a legged robot (module docstring); a
@@ -37,9 +44,14 @@ class Legged(RobotKind):
     hard_limit_bounce: bool | None = True
 
     def state(self, robot, envs: int) -> RobotState:
-        """:meth:`RobotState.legged` (joints, base, feet) at the robot's ambient temperature."""
+        """:meth:`RobotState.legged` (joints, base, feet) at the robot's ambient temperature;
+        its ``sensed_orientation`` (upright until the IMU's first attitude) where robot.toml
+        says the IMU sends its own attitude (``[sensors.imu] orientation_sigma``)."""
         ambient = robot.config.sensors.ambient_temperature
-        return RobotState.legged(envs, robot.n_joints, robot.n_feet, ambient)
+        state = RobotState.legged(envs, robot.n_joints, robot.n_feet, ambient)
+        if sends_attitude(robot):
+            state.sensed_orientation = state.base.orientation.copy()
+        return state
 
     def targets(self, robot) -> DriveTargets:
         """:func:`~sim2real.deploy.kinds.targets.uniform_targets`: the kind's choices, every

@@ -2,8 +2,11 @@
 :meth:`sim2real.deploy.kinds.legged.Legged.tick_stage` gives the runtime): after the joints'
 estimate, the base estimate from the IMU and the legs' kinematics, the feet's contact, the gait
 clock, the stale IMU's stop and the fall check's (compiled as two calls bound to the runtime's
-arrays); after the smoother, the damped command of every env in a safe stop (a legged robot's
-every stop lays it down). A fixed base adds none (:class:`sim2real.deploy.kinds.arm.FixedBase`).
+arrays), and the IMU's own attitude where it sends one (``RobotState.sensed_orientation``: the
+source of a motion-tracking policy's anchor, as rl_sar's G1 loop reads
+``imu_state.quaternion``); after the smoother, the damped command of every env in a safe stop
+(a legged robot's every stop lays it down). A fixed base adds none
+(:class:`sim2real.deploy.kinds.arm.FixedBase`).
 
 The stage is given its runtime (:class:`~sim2real.deploy.runtime.loop.Runtime`) and reads its
 public arrays (``mode``, ``time``, ``lying_expected``, ``height_map``, ``supervision``); it
@@ -15,7 +18,9 @@ from __future__ import annotations
 import operator
 
 import numpy as np
+import pinocchio as pin
 
+from sim2real.deploy.core.attitude import quat_multiply
 from sim2real.deploy.core.modes import RAMP_IN, RUNNING, SAFE_STOP
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels import any_true
@@ -51,6 +56,10 @@ class LeggedTick:
         self._backend_damp = getattr(runtime.backend, "damp", None)
         #: (envs,) bool: the envs whose command damps, this tick's
         self._damp = np.zeros(runtime.envs, dtype=bool)
+        #: (4,) ``w x y z``: the base-to-IMU-site rotation, the conjugate of the site's in the
+        #: base (the estimator's ``imu_to_base``): ``q_base = q_site * site_to_base``
+        x, y, z, w = pin.Quaternion(np.asarray(base_estimator.imu_to_base, float)).coeffs()
+        self._site_to_base = np.array([w, -x, -y, -z])
 
     def bind(self) -> None:
         """Compile (or load) and bind the tick's calls before its first tick."""
@@ -64,6 +73,24 @@ class LeggedTick:
         self.stages[0].reset(
             frame.time, acceleration=acc if finite else None, orientation=frame.imu_orientation
         )
+        sensed = self.rt.state.sensed_orientation
+        if sensed is not None:  # until the IMU's first attitude: the estimate's (yaw 0)
+            sensed[:] = self.stages[0].orientation
+            self.sense(frame, sensed)
+
+    def sense(self, frame, sensed: np.ndarray) -> None:
+        """Into ``sensed`` (envs, 4), the base's orientation by the IMU's own attitude
+        (``frame.imu_orientation``, the IMU site's) of each env whose reading arrived; an env
+        without one (a lost or late reading) keeps its last, as a loop reading the last
+        ``LowState`` does."""
+        quat = frame.imu_orientation
+        if quat is None:
+            return
+        ok = np.isfinite(quat).all(axis=1)
+        if ok.all():
+            sensed[:] = quat_multiply(quat, self._site_to_base)
+        elif ok.any():
+            sensed[ok] = quat_multiply(quat[ok], self._site_to_base)
 
     def restart(self, t, envs: np.ndarray) -> None:
         """``Runtime.restart``: the envs of ``envs`` upright again at time ``t``."""
@@ -106,6 +133,8 @@ class LeggedTick:
         if rt.height_map is not None:
             rt.supervision.safe_stop(rt.height_map.update(frame), "stale_sensor")
         est.update(frame, state.q, state.dq, out=state.base)
+        if state.sensed_orientation is not None:
+            self.sense(frame, state.sensed_orientation)
         calls = self.screens(state) if self.compiled else None
         if calls is not None:  # the same, compiled (estimation.fall's stale_screen, fall_screen)
             stale_call, fall_call, stale, fall = calls

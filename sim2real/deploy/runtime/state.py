@@ -71,6 +71,8 @@ class RuntimeState:
                 fields[f"state/{name}"] = getattr(st, name)
             for name, value in vars(st.base).items():
                 fields[f"state/base/{name}"] = value
+        if st.sensed_orientation is not None:  # the IMU's own attitude, as the base's
+            fields["state/sensed_orientation"] = st.sensed_orientation
         return fields
 
     def _shared_fields(self) -> dict[str, np.ndarray]:

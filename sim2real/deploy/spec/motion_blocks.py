@@ -13,6 +13,9 @@ defines two terms from the reference clip:
   ``ComputeTorsoQuat``): the torso sits at the end of the waist chain yaw, roll, pitch whose
   bodies carry no rotation of their own in unitree_mujoco's ``g1_29dof.xml``
   (``tests/test_motion_blocks.py`` checks it against MuJoCo's ``xquat`` of ``torso_link``).
+  ``q_base`` is what the robot senses (:func:`anchor_base_orientation`): the IMU's own attitude
+  where the robot's IMU sends one (rl_sar's ``RL_Real::RunModel`` on the G1: ``base_quat =
+  imu_state.quaternion``), else the base estimate's.
 
 Both read what the motion task writes into ``RobotState.motion`` (envs, 2n + 4): the clip's
 joint angles (n) and velocities (n) in the robot's joint order, then the reference anchor
@@ -116,6 +119,15 @@ def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
     return q0 * (np.sin((1.0 - t) * theta) / s) + q1 * (np.sin(t * theta) / s)
 
 
+def anchor_base_orientation(state) -> np.ndarray:
+    """(envs, 4) the base orientation the anchor is built from and the clip aligned to:
+    ``state.sensed_orientation`` (the IMU's own attitude) where the robot's IMU sends one,
+    else the base estimate's ``state.base.orientation`` (robot.toml ``[sensors.imu]
+    orientation_sigma`` says which: :func:`sim2real.deploy.kinds.legged.sends_attitude`)."""
+    sensed = getattr(state, "sensed_orientation", None)
+    return state.base.orientation if sensed is None else sensed
+
+
 def motion_buffer(spec, envs: int, n: int) -> np.ndarray | None:
     """``RobotState.motion`` for a spec that reads a clip (envs, 2n + 4): zero angles and
     velocities, the identity anchor, until the motion task writes the clip; None otherwise."""
@@ -146,8 +158,9 @@ def motion_command(state, goal, raw, block, vec, rot) -> None:
 
 def motion_anchor_ori_b(state, goal, raw, block, vec, rot) -> None:
     """Writer of ``motion_anchor_ori_b`` (module docstring): ``raw`` (envs, 6); the block's
-    joints are the waist's yaw, roll and pitch joints."""
+    joints are the waist's yaw, roll and pitch joints; the base as
+    :func:`anchor_base_orientation` gives it."""
     motion = _motion(state, block)
     n = state.q.shape[1]
-    torso = torso_quat(state.base.orientation, state.q[:, block.joints])
+    torso = torso_quat(anchor_base_orientation(state), state.q[:, block.joints])
     raw[:] = anchor_ori_b(torso, motion[:, 2 * n : 2 * n + 4])

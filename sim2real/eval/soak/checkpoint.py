@@ -80,7 +80,10 @@ FORMAT = "soak-checkpoint"
 #: ``violations/down/hard_joint_depth``), and each joint's ticks above its velocity and effort
 #: limits and how far (``violations/speed_joint_*``, ``violations/effort_joint_*``); a version
 #: 16 checkpoint has none.
-VERSION = 17
+#: 18: the base orientation the IMU's own attitude gives (``state/sensed_orientation``, a
+#: tracking policy's anchor) and the simulated IMU's heading drift (``backend/imu/heading_*``);
+#: a version 17 checkpoint has neither.
+VERSION = 18
 MANIFEST = "checkpoint.json"
 
 

@@ -48,6 +48,12 @@ VELOCITY_NOISE_SIGMA = 0.02
 #: its correlation time (s, our choice).
 ORIENTATION_SIGMA = 0.0087
 ORIENTATION_TAU = 1.0
+#: Its heading's drift (a 6-axis AHRS, no magnetometer): the residual yaw-rate bias once the
+#: filter has calibrated its gyroscope at rest, 1 sigma, the in-run bias stability of the Xsens
+#: MTi-1 series (MTi-3) datasheet, 10 deg/h; the heading's angle random walk, its gyroscope
+#: noise density, 0.007 deg/s/sqrt(Hz).
+HEADING_RATE_SIGMA = 10.0 * math.pi / 180.0 / 3600.0  # 4.85e-5 rad/s
+HEADING_WALK = 0.007 * math.pi / 180.0  # 1.22e-4 rad/sqrt(s)
 ACCEL_BIAS_WALK = 4e-3  # m/s^2/sqrt(s)
 #: Foot force noise: the specified range (force sensors 0.05-0.10 normalized), the lower end, over
 #: the standing load of one foot (m g / n_feet). Contact threshold: 3 sigma above it, and at
@@ -200,9 +206,15 @@ def _imu_lines(imu_link: str, control_rate: float) -> list[str]:
         "# imu_state.quaternion, the attitude unitree_rl_gym's deploy_real feeds its policies):",
         "# roll and pitch errors as first-order Gauss-Markov processes (robots/schema.py); the",
         "# static roll/pitch accuracy MEMS AHRS modules specify (Xsens MTi-3 datasheet: 0.5 deg;",
-        "# dynamic 1.0 deg), 1 s correlation. Delete both lines if the IMU sends no attitude.",
+        "# dynamic 1.0 deg), 1 s correlation. Delete these four lines if the IMU sends no",
+        "# attitude. Its heading drifts as a 6-axis AHRS's (no magnetometer, as Unitree's): a",
+        "# residual yaw-rate bias, the MTi-3's in-run bias stability (10 deg/h), and the angle",
+        "# random walk of its gyroscope's noise density (0.007 deg/s/sqrt(Hz)). A motion-tracking",
+        "# policy's anchor reads this attitude (docs/motion-tracking.md).",
         f"orientation_sigma = {_f(ORIENTATION_SIGMA)}  # rad",
         f"orientation_tau = {_f(ORIENTATION_TAU)}  # s",
+        f"heading_rate_sigma = {_f(_sig(HEADING_RATE_SIGMA, 3))}  # rad/s",
+        f"heading_walk = {_f(_sig(HEADING_WALK, 3))}  # rad/sqrt(s)",
         "",
     ]
 

@@ -13,7 +13,15 @@ IMU (``[sensors.imu]``, Kalibr's IMU noise model, per axis, sample period ``dt``
 
 for the gyroscope (rad/s) and the accelerometer (specific force, m/s^2), both in the IMU site's
 frame; a reading is lost with probability ``dropout``. An IMU with ``orientation_sigma`` also
-sends its own attitude (its onboard filter, ``_onboard_attitude`` below). Foot contact
+sends its own attitude (its onboard filter, ``_onboard_attitude`` below): the IMU site's true
+attitude relative to gravity, turned by a roll and pitch error (each a Gauss-Markov process)
+and, with ``heading_rate_sigma``, by a heading error about gravity that drifts as a 6-axis
+AHRS's does::
+
+    h_k = h_(k-1) + r dt + heading_walk sqrt(dt) N(0, 1)   (h_0 = 0, r ~ N(0, heading_rate_sigma^2)
+                                                           drawn at turn-on, then held)
+
+reported ``Rz(h) R_xy(roll, pitch error) q_site`` (world frame, ``w x y z``). Foot contact
 (``[sensors.contact]``): each foot's normal force plus Gaussian noise (N),
 ``foot_contact = force > threshold``.
 
@@ -128,6 +136,15 @@ class BaseSensorModel:
         #: world-frame rotation about x and y)
         self.orientation_error = np.zeros((envs, 2))
         self._noise2 = np.empty((envs, 2))
+        #: the onboard attitude's heading drifts (``[sensors.imu] heading_rate_sigma`` set)
+        self.has_heading = self.has_orientation and imu.heading_rate_sigma is not None
+        self.heading_rate_sigma = full(imu.heading_rate_sigma or 0.0)
+        self.heading_walk = full(imu.heading_walk)
+        #: (envs,) rad/s, the onboard filter's residual yaw-rate bias (ground truth; drawn at
+        #: each reset); heading_error: (envs,) rad, its heading's present error about gravity
+        self.heading_rate = np.zeros(envs)
+        self.heading_error = np.zeros(envs)
+        self._noise1 = np.empty((envs, 1))
         self._site_quat = np.array(backend.models[0].site_quat[robot.imu_site_id], dtype=float)
         # an AHRS's attitude is relative to gravity: the world turned so that gravity is -z
         g = np.array(backend.models[0].opt.gravity, dtype=float)
@@ -199,6 +216,10 @@ class BaseSensorModel:
             draw(self.backend.joint_sensors.rng, "standard_normal", self._noise2, which)
             start = self._noise2 * self.orientation_sigma[:, None]
             self.orientation_error[which] = start[which]
+        if self.has_heading:  # the filter's heading restarts at the truth's; its rate bias anew
+            draw(self.backend.joint_sensors.rng, "standard_normal", self._noise1, which)
+            self.heading_rate[which] = (self._noise1[:, 0] * self.heading_rate_sigma)[which]
+            self.heading_error[which] = 0.0
         if full:
             for buf in (self._buf_imu, self._buf_imu_stamp, self._buf_force):
                 buf.fill(np.nan)
@@ -258,6 +279,8 @@ class BaseSensorModel:
         values = dict(
             nsensor=self._nsensor, nq=self._nq, gyro=self._gyro.start, acc=self._acc.start,
             has_orientation=self.has_orientation, dt=self.imu_every * self.robot.control_period,
+            has_heading=self.has_heading, heading_rate=self.heading_rate,
+            heading_walk=self.heading_walk, heading_error=self.heading_error, noise1=self._noise1,
             streams=streams, data=self._data, touch=self._touch_index, a=self._a,
             gyro_bias=self.gyro_bias, accel_bias=self.accel_bias,
             gyro_bias_walk=self.gyro_bias_walk, accel_bias_walk=self.accel_bias_walk,
@@ -323,7 +346,9 @@ class BaseSensorModel:
         """(envs, 4) the IMU's own attitude after ``dt`` s: each roll and pitch error steps its
         Gauss-Markov process (``e' = a e + sqrt(1 - a^2) sigma N(0, 1)``, ``a = exp(-dt / tau)``;
         only the envs ``envs`` when given) and turns the IMU site's true attitude (relative to
-        gravity) about the world's x and y axes."""
+        gravity) about the world's x and y axes; with a drifting heading (``has_heading``), the
+        heading error steps (``h' = h + r dt + walk sqrt(dt) N(0, 1)``) and turns it about the
+        world's z axis after (module docstring)."""
         draw(self.backend.joint_sensors.rng, "standard_normal", self._noise2, envs)
         a = np.exp(-dt / self.orientation_tau)[:, None]
         step = a * self.orientation_error + np.sqrt(1 - a * a) * (
@@ -335,7 +360,17 @@ class BaseSensorModel:
         site = quat_multiply(np.broadcast_to(self._gravity_frame, site.shape), site)
         error = np.zeros((self.envs, 3))
         error[:, :2] = self.orientation_error
-        return quat_multiply(rotation_quaternions(error), site)
+        attitude = quat_multiply(rotation_quaternions(error), site)
+        if not self.has_heading:
+            return attitude
+        draw(self.backend.joint_sensors.rng, "standard_normal", self._noise1, envs)
+        step = self.heading_error + (
+            self.heading_rate * dt + self.heading_walk * np.sqrt(dt) * self._noise1[:, 0]
+        )
+        self.heading_error[sel] = step[sel]
+        turn = np.zeros((self.envs, 3))
+        turn[:, 2] = self.heading_error
+        return quat_multiply(rotation_quaternions(turn), attitude)
 
     def read(self, frame, tick: int) -> None:
         """Fill the frame's IMU and contact fields with the readings arriving at ``tick``: one
@@ -417,6 +452,10 @@ class BaseSensorModel:
             "imu/orientation_sigma": self.orientation_sigma,
             "imu/orientation_tau": self.orientation_tau,
             "imu/orientation_error": self.orientation_error,
+            "imu/heading_rate_sigma": self.heading_rate_sigma,
+            "imu/heading_walk": self.heading_walk,
+            "imu/heading_rate": self.heading_rate,
+            "imu/heading_error": self.heading_error,
             "imu/buffer": np.moveaxis(self._buf_imu, 1, 0),
             "imu/buffer_stamp": np.moveaxis(self._buf_imu_stamp, 1, 0),
             "contact/force_noise_sigma": self.force_noise_sigma,

@@ -50,6 +50,8 @@ def _quat_mul(aw, ax, ay, az, bw, bx, by, bz):
 SAMPLE = Table(
     "sim2real.deploy.backends.sim.legged_sensors_kernel:SAMPLE",
     nsensor="i8", nq="i8", gyro="i8", acc="i8", has_orientation="b1", dt="f8",
+    has_heading="b1", heading_rate="f8[envs]", heading_walk="f8[envs]",
+    heading_error="f8[envs]", noise1="f8[envs,1]",
     streams="i8[envs,3]", data="i8[envs,2]", touch="i8[nf]", a="f8[envs]",
     gyro_bias="f8[envs,3]", accel_bias="f8[envs,3]", gyro_bias_walk="f8[envs]",
     accel_bias_walk="f8[envs]", gyro_noise_sigma="f8[envs]", accel_noise_sigma="f8[envs]",
@@ -81,6 +83,8 @@ def base_sample(t, imu_due, contact_due, slot, time):
     orientation_sigma, site_quat, gravity_frame = t.orientation_sigma, t.site_quat, t.gravity_frame
     dropout, force_noise_sigma = t.dropout, t.force_noise_sigma
     noise6, noise2, noise_f = t.noise6, t.noise2, t.noise_f
+    has_heading, heading_rate, heading_walk = t.has_heading, t.heading_rate, t.heading_walk
+    heading_error, noise1 = t.heading_error, t.noise1
     buf_imu, buf_imu_stamp = t.buf_imu, t.buf_imu_stamp
     buf_force, buf_contact_stamp = t.buf_force, t.buf_contact_stamp
     envs = streams.shape[0]
@@ -135,6 +139,25 @@ def base_sample(t, imu_due, contact_due, slot, time):
                 row = buf_imu[slot, e]
                 for j in range(4):
                     row[6 + j] = q[j]
+            if has_heading:  # numpy's path: all envs' draws, then each env's turn
+                for e in range(envs):
+                    noise1[e, 0] = _standard_normal(streams[e])
+                for e in range(envs):
+                    heading_error[e] = heading_error[e] + (
+                        heading_rate[e] * dt + heading_walk[e] * root * noise1[e, 0]
+                    )
+                    h = heading_error[e]
+                    angle = math.sqrt(0.0 * 0.0 + 0.0 * 0.0 + h * h)  # rotation_rows' norm
+                    if angle < 1e-12:
+                        half, w = 0.5, 1.0
+                    else:
+                        half, w = math.sin(angle / 2) / angle, math.cos(angle / 2)
+                    row = buf_imu[slot, e]
+                    q = _quat_mul(
+                        w, 0.0 * half, 0.0 * half, h * half, row[6], row[7], row[8], row[9]
+                    )
+                    for j in range(4):
+                        row[6 + j] = q[j]
         else:
             for e in range(envs):
                 for j in range(4):

@@ -21,7 +21,8 @@ The reference's own self-contacts (:mod:`~sim2real.deploy.tasks.motion.self_cont
 once; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs it touches.
 
 Judged while the clip plays (not while its last frame holds), on the plant's truth in
-simulation (the estimate on hardware): joint-angle error (rad RMS) per body group (legs, waist,
+simulation (the estimate on hardware, the IMU's own attitude for the anchor where it sends
+one): joint-angle error (rad RMS) per body group (legs, waist,
 arms: by the joint's name), the anchor's orientation error (deg, the torso of the true base and
 joint angles against the aligned reference), the bodies' position error (MPJPE, mm,
 root-relative: both poses' forward kinematics with the base at the origin, Pinocchio; the bodies
@@ -35,7 +36,13 @@ import numpy as np
 
 from sim2real.deploy.core.attitude import yaw_of
 from sim2real.deploy.core.modes import RUNNING
-from sim2real.deploy.spec.motion_blocks import axis_quat, quat_conj, quat_mul, torso_quat
+from sim2real.deploy.spec.motion_blocks import (
+    anchor_base_orientation,
+    axis_quat,
+    quat_conj,
+    quat_mul,
+    torso_quat,
+)
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
 from sim2real.deploy.tasks.velocity import VelocityTask
@@ -70,8 +77,9 @@ class TrackingTask:
         sq_error: (envs, n) rad^2, squared joint-angle error summed over the playing ticks;
             anchor_sum: (envs,) deg, anchor error summed; anchor_max: (envs,) deg; ticks:
             (envs,) playing ticks judged. heading: (envs,) rad, the true base yaw less the
-            estimate's when the clip was last aligned (the anchor is judged against the clip
-            turned by it: the estimate's heading error then is not the policy's).
+            sensed one (the anchor's source) when the clip was last aligned (the anchor is
+            judged against the clip turned by it: that heading's error then is not the
+            policy's).
         contacts: The reference's self-contacts
             (:class:`~sim2real.deploy.tasks.motion.self_contact.ClipContacts`).
         play_log: per env, a list of ended plays: ``completed`` (share of the clip),
@@ -140,19 +148,20 @@ class TrackingTask:
 
     def _align(self, runtime, envs: np.ndarray) -> None:
         state = runtime.state
-        self.motion.align(envs, state.base.orientation, state.q[:, self.waist])
+        self.motion.align(envs, anchor_base_orientation(state), state.q[:, self.waist])
         self._true_heading(state, envs)
         self.motion.write(self._buffer(runtime), envs)
 
     def _true_heading(self, state, envs: np.ndarray) -> None:
-        """Note, for the envs of ``envs`` just aligned, the truth's base yaw less the estimate's
-        (rad; 0 without a truth): the clip was aligned to the estimated heading, and is judged
-        turned by it against the true robot (:meth:`_judge`), so that the estimate's yaw error
-        at the alignment is not counted as the policy's anchor error."""
+        """Note, for the envs of ``envs`` just aligned, the truth's base yaw less the sensed one
+        (rad; 0 without a truth): the clip was aligned to the heading the anchor reads (the
+        IMU's own or the estimate's: :func:`anchor_base_orientation`), and is judged turned by
+        it against the true robot (:meth:`_judge`), so that that heading's error at the
+        alignment is not counted as the policy's anchor error."""
         if self.truth is None:
             return
         e = np.flatnonzero(envs)
-        turn = yaw_of(self.truth()[e, 3:7]) - yaw_of(state.base.orientation[e])
+        turn = yaw_of(self.truth()[e, 3:7]) - yaw_of(anchor_base_orientation(state)[e])
         self.heading[e] = np.angle(np.exp(1j * turn))
 
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
@@ -175,7 +184,8 @@ class TrackingTask:
             clock.advance(self.dt, playing)
             if clock.restarted.any():  # an exhibition's next play: aligned as at its start
                 state = runtime.state
-                clock.align(clock.restarted, state.base.orientation, state.q[:, self.waist])
+                base = anchor_base_orientation(state)
+                clock.align(clock.restarted, base, state.q[:, self.waist])
                 self._true_heading(state, clock.restarted)
             now = np.where(playing, np.minimum(clock.time, clock.length), 0.0)
             np.maximum(self.progress, now, out=self.progress)
@@ -203,7 +213,7 @@ class TrackingTask:
         q = state.q
         if self.true_q is not None:
             q = self.true_q()
-        quat = state.base.orientation if self.truth is None else self.truth()[:, 3:7]
+        quat = anchor_base_orientation(state) if self.truth is None else self.truth()[:, 3:7]
         torso = torso_quat(quat, q[:, self.waist])
         anchor = quat_mul(axis_quat(2, self.heading), ref[:, 2 * n : 2 * n + 4])
         rel = quat_mul(quat_conj(torso), anchor)

@@ -14,7 +14,18 @@ defines two terms from the reference clip:
   bodies carry no rotation of their own in unitree_mujoco's ``g1_29dof.xml``
   (``tests/test_motion_blocks.py`` checks it against MuJoCo's ``xquat`` of ``torso_link``).
 
-Both read what the motion task writes into ``RobotState.motion`` (envs, 2n + 4): the clip's
+A phase-clocked motion policy (rl_sar's ``RoboMimic_Deploy/phase``, RoboMimic_Deploy's
+``Dance``: a dance learned whole, no clip read at run time) reads a third:
+
+- ``motion_phase`` (1): ``t / T``, ``t`` the time since its motion started (s, the runtime's
+  :class:`~sim2real.deploy.runtime.motion_phase.MotionPhaseClock`, ``RobotState.motion_time``),
+  ``T`` the block's ``period`` (the motion's length, s): a ramp from 0 at the start to 1 at the
+  motion's end, not clamped (rl_sar's ``rl_sdk.cpp`` computes ``episode_length_buf x dt x
+  decimation / motion_length`` as it is; RoboMimic_Deploy's ``Dance.run`` and rl_sar's exported
+  module clamp the newest frame's to 1 themselves). Where a stack's first tick reads more than
+  0 (rl_sar counts its first tick as one), the block's ``offset`` says so.
+
+The first two read what the motion task writes into ``RobotState.motion`` (envs, 2n + 4): the clip's
 joint angles (n) and velocities (n) in the robot's joint order, then the reference anchor
 quaternion ``w x y z`` in the world frame, already yaw-aligned
 (:mod:`sim2real.deploy.tasks.motion.clock`). Quaternions here are ``w x y z``, arrays (..., 4).
@@ -40,8 +51,13 @@ NUMPY_REASON = (
 )
 
 
-#: The kinds these writers are (:mod:`sim2real.deploy.spec.kinds`).
+#: The kinds these writers are (:mod:`sim2real.deploy.spec.kinds`) that read the clip.
 KIND_NAMES = ["motion_command", "motion_anchor_ori_b"]
+#: Why ``motion_phase`` runs in numpy.
+PHASE_REASON = (
+    "a motion phase block reads the runtime's motion clock (RobotState.motion_time), which the "
+    "compiled kernel has no input for"
+)
 
 
 def quat_conj(q: np.ndarray) -> np.ndarray:
@@ -151,3 +167,14 @@ def motion_anchor_ori_b(state, goal, raw, block, vec, rot) -> None:
     n = state.q.shape[1]
     torso = torso_quat(state.base.orientation, state.q[:, block.joints])
     raw[:] = anchor_ori_b(torso, motion[:, 2 * n : 2 * n + 4])
+
+
+def motion_phase(state, goal, raw, block, vec, rot) -> None:
+    """Writer of ``motion_phase`` (module docstring): ``raw`` (envs, 1) ``t / T``."""
+    t = getattr(state, "motion_time", None)
+    if t is None:
+        raise MotionBlockError(
+            f"observation: block '{block.kind.name}' needs the runtime's motion clock "
+            "(RobotState.motion_time)"
+        )
+    raw[:, 0] = np.asarray(t, float) / block.period

@@ -130,10 +130,14 @@ def onnx_net(path):
     return lambda obs: session.run(None, {name: obs})[0]
 
 
-def run(model, config, scene, timestep=0.003, decimation=7, settle=0.2, save=None) -> dict:
-    """Play the dance once (module docstring); returns the figures :func:`main` prints."""
+def run(
+    model, config, scene, timestep=0.003, decimation=7, settle=0.2, save=None, net=None
+) -> dict:
+    """Play the dance once (module docstring); returns the figures :func:`main` prints.
+    ``net``: the network ``(1, 380) float32 -> (1, 23)`` in place of ``model``'s ONNX session
+    (the same network inside rl_sar's module, ``torch.jit.load(pt).model``)."""
     cfg = yaml.safe_load(Path(config).read_text())
-    dance = Dance(cfg, onnx_net(model))
+    dance = Dance(cfg, net if net is not None else onnx_net(model))
     m = mujoco.MjModel.from_xml_path(str(scene))
     m.opt.timestep = float(timestep)
     d = mujoco.MjData(m)

@@ -3,39 +3,25 @@
 ``python -m bench.robomimic_dance MODEL.onnx DANCE.yaml SCENE.xml [--timestep 0.003]
 [--decimation 7] [--settle 0.2] [--save q.npz]``
 
-``MODEL.onnx`` and ``DANCE.yaml`` are RoboMimic_Deploy's (ccrpRepo/RoboMimic_Deploy ffe3d40:
-``policy/dance/model/dance_0605.onnx``, ``policy/dance/config/Dance.yaml``; rl_sar's
-``policy/g1/robomimic/charleston/dance_0605_aligned.pt`` wraps the same network, 380 -> 23, in
-a module that reads rl_sar's 376-entry history and answers 29 actions); ``SCENE.xml`` a G1 29-dof
-MJCF whose 29 hinge joints and motors are in the SDK's order (unitree_mujoco's
-``unitree_robots/g1/g1_29dof.xml``; RoboMimic's own ``g1_description/scene.xml`` also fits).
-Written from RoboMimic_Deploy (read, not copied), independent of this toolkit's runtime:
+``MODEL.onnx``, ``DANCE.yaml``: RoboMimic_Deploy's (ccrpRepo/RoboMimic_Deploy ffe3d40,
+``policy/dance/model/dance_0605.onnx``, ``policy/dance/config/Dance.yaml``; rl_sar's charleston
+module wraps the same network); ``SCENE.xml``: a G1 29-dof MJCF with a floor, joints and motors in
+the SDK's order (unitree_mujoco's ``scene_29dof.xml``). Written from RoboMimic_Deploy (read, not
+copied), independent of this toolkit's runtime: ``deploy_mujoco.py`` (physics at 0.003 s, the
+policy every 7 steps, ``--timestep``/``--decimation`` change them; PD ``kp (target - q) - kd dq``
+at every physics step on ``qpos[7:]``/``qvel[6:]``, truth, torques clipped by the ``ctrlrange``
+only; angular velocity ``qvel[3:6]``, gravity ``get_gravity_orientation``) and ``Dance.py``
+(the 23 joints of ``dof23_index``; each term's 4 frames newest first, the newest this tick's;
+``action, ang_vel x 0.25, q - default, dq x 0.05``, the histories, ``gravity, min(phase, 1)``:
+380; targets ``default + 0.25 action``, the wrists at default; ``phase = counter x 0.02 / T``
+after the tick: the first reads 0, 0.02 s a tick whatever the period).
 
-- ``deploy_mujoco/deploy_mujoco.py``: physics at ``simulation_dt`` 0.003 s, the policy every
-  ``control_decimation`` 7 steps (``deploy_mujoco/config/mujoco.yaml``; ``--timestep`` and
-  ``--decimation`` change them, e.g. rl_sar's 0.005 x 4); the PD law ``kp (target - q) + kd (0 -
-  dq)`` at every physics step, on the MJCF's ``qpos[7:]``, ``qvel[6:]`` (truth, no sensor model),
-  the torque clipped only by the motors' ``ctrlrange``; the base's angular velocity
-  ``qvel[3:6]`` (body frame) and gravity ``get_gravity_orientation(qpos[3:7])``
-  (``common/utils.py``);
-- ``policy/dance/Dance.py`` ``Dance.enter``/``run``: the 23 joints of ``dof23_index``; each term's
-  history of 4 frames, newest first, the newest being this tick's; the observation ``action,
-  ang_vel x 0.25, q - default, dq x 0.05`` (this tick), then the history ``actions, ang_vels,
-  dof_pos, dof_vels, gravities, phases`` (each 4 frames), then ``gravity, min(phase, 1)``: 380;
-  targets ``default + 0.25 action`` on the 23 joints, the six wrist joints held at their default
-  angle; then ``counter_step += 1`` and ``phase = counter_step x 0.02 / motion_length``: the first
-  tick reads phase 0, and the phase counts 0.02 s per tick whatever the control period is.
-
-The start: the robot at ``default_angles`` with its pelvis at unitree's 0.793 m, held by the
-dance's own gains for ``--settle`` s, then ``Dance.enter`` (RoboMimic's operator walks there with
-its locomotion policy first; this loop goes straight in). Runs ``motion_length / 0.02`` policy
-ticks (the phase's 0..1) and prints the share played before a fall (pelvis below 0.35 m or tilted
-past 60 deg, as :mod:`bench.rl_sar_tracking`), the joints' error against the targets the policy
-set (rad RMS over the 29 joints, the wrists' targets their default angles: each tick's joint
-angles after its physics steps against the target of that tick, as ``deploy-run``'s ``motion
-phase`` line judges it), the base's travel and the ticks that end with two of the robot's bodies
-in contact (MuJoCo's contacts, the MJCF's own collision filter); ``--save`` writes each tick's joint angles
-(ticks, 29), the base position and the phase.
+Start: the default pose at unitree's 0.793 m, held by the dance's gains ``--settle`` s, then
+``Dance.enter`` (RoboMimic walks there first). Runs ``T / 0.02`` ticks and prints the share played
+before a fall (as :mod:`bench.rl_sar_tracking`), the joints' error against the policy's targets
+(rad RMS, 29 joints: each tick's angles after its physics against its target, as ``deploy-run``'s
+``motion phase`` line), the base's travel and the ticks ending with two robot bodies in contact;
+``--save`` writes each tick's joint angles, base position and phase.
 """
 
 from __future__ import annotations

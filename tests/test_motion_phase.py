@@ -1,5 +1,5 @@
 """A phase-clocked dance: the ``motion_phase`` block (``t / T``), the motion clock the runtime
-owns (sim2real/deploy/runtime/motion_phase.py), rl_sar's ``RoboMimic_Deploy/phase`` mapped onto
+owns (sim2real/deploy/core/phase_clock.py), rl_sar's ``RoboMimic_Deploy/phase`` mapped onto
 them, and the sizes ``policy-export --inspect`` reads from a TorchScript module that wraps its
 network. CI runs them on files written the way rl_sar writes its RoboMimic folder
 (tests/robomimic_files.py); the last tests play rl_sar's own charleston on unitree_mujoco's G1
@@ -17,12 +17,13 @@ import yaml
 from onnx import helper
 
 from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.phase_clock import MotionPhaseClock
+from sim2real.deploy.core.stateful import StateDictError
 from sim2real.deploy.export.folder_torchscript import contract_sizes
 from sim2real.deploy.export.inspect_torch import inspect_torchscript
 from sim2real.deploy.export.pipeline import parity_errors
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.runtime import Mode, Runtime
-from sim2real.deploy.runtime.motion_phase import MotionPhaseClock
 from sim2real.deploy.spec.foreign.contract import ForeignFormatError
 from sim2real.deploy.spec.foreign.registry import read_folder_contract
 from sim2real.deploy.spec.policy_spec import ObservationBlock, PolicySpec
@@ -63,51 +64,55 @@ def test_the_phase_ramps_from_the_first_running_tick_and_a_stop_starts_it_again(
     reads one period there), one period more each RUNNING tick; a safe stop ends the play and the
     next RUNNING tick starts it at 0 again."""
     rt = _runtime(go2, phase_policy)
-    first = None
+    clock = rt.base_tick.phase_clock
+    first = np.full(2, -1)
     for _ in range(40):
         rt.tick()
-        if first is None and (rt.mode == Mode.RUNNING).all():
-            first = rt.ticks
-    assert first is not None
-    running = rt.ticks - first  # RUNNING ticks after the first
-    np.testing.assert_array_equal(rt.phase_clock.ticks, running)
+        new = (rt.mode == Mode.RUNNING) & (first < 0)
+        first[new] = rt.ticks
+        assert (clock.ticks[new] == 0).all()  # the first RUNNING tick reads 0
+    assert (first > 0).all()
+    running = rt.ticks - first  # RUNNING ticks before the last one
+    np.testing.assert_array_equal(clock.ticks, running)
     np.testing.assert_allclose(rt.state.motion_time, running * rt.dt)
     np.testing.assert_allclose(_phase(rt), running * rt.dt / T + LEAD, atol=1e-6)
 
     rt.supervision.safe_stop(np.array([True, False]), "operator")
-    rt.tick()  # env 0 stops: its clock reads 0, not playing; env 1 plays on
-    assert rt.mode[0] != Mode.RUNNING and rt.phase_clock.ticks[0] == -1
-    assert rt.state.motion_time[0] == 0.0 and rt.phase_clock.ticks[1] == running + 1
+    rt.tick()  # env 0 stopped: its clock reads 0; env 1 plays on
+    assert rt.mode[0] != Mode.RUNNING and clock.ticks[0] == 0 and rt.state.motion_time[0] == 0
+    assert clock.ticks[1] == running[1] + 1
 
 
 def test_the_motion_clock_survives_the_runtime_state_dict(go2, phase_policy):
     rt = _runtime(go2, phase_policy, seed=1)
     rt.run(25)
     saved = rt.state_dict()
-    assert "motion_phase/ticks" in saved and "motion_phase/time" in saved
+    assert "motion_phase/ticks" in saved and "motion_phase/time" in saved  # a part
     rt.run(15)
-    expected = (rt.phase_clock.ticks.copy(), _phase(rt))
+    expected = (rt.base_tick.phase_clock.ticks.copy(), _phase(rt))
     again = _runtime(go2, phase_policy, seed=7)
     again.run(3)  # another history: the state must replace it
     again.load_state_dict(saved)
     again.run(15)
-    np.testing.assert_array_equal(again.phase_clock.ticks, expected[0])
+    np.testing.assert_array_equal(again.base_tick.phase_clock.ticks, expected[0])
     np.testing.assert_allclose(_phase(again), expected[1], atol=1e-7)
 
 
 def test_the_clock_alone_counts_running_ticks_and_restores_its_state():
+    """From the modes the previous tick ended in: RUNNING plays on one period, else 0."""
     clock = MotionPhaseClock(3, 0.02)
     mode = np.array([Mode.RUNNING, Mode.RAMP_IN, Mode.RUNNING])
     for _ in range(3):
         clock.advance(mode)
-    np.testing.assert_allclose(clock.time, [0.04, 0.0, 0.04])
+    np.testing.assert_allclose(clock.time, [0.06, 0.0, 0.06])
     mode[2] = Mode.SAFE_STOP
     clock.advance(mode)
-    np.testing.assert_array_equal(clock.ticks, [3, -1, -1])
+    np.testing.assert_array_equal(clock.ticks, [4, 0, 0])
     other = MotionPhaseClock(3, 0.02)
     other.load_state_dict(clock.state_dict())
     np.testing.assert_array_equal(other.ticks, clock.ticks)
-    with pytest.raises(ValueError, match="field 'ticks'"):
+    other.load_state_dict(MotionPhaseClock(3, 0.02).state_dict(1), env=1)
+    with pytest.raises(StateDictError, match="field 'ticks'"):
         other.load_state_dict({"ticks": np.zeros(2), "time": np.zeros(3)})
     with pytest.raises(ValueError, match="period"):
         MotionPhaseClock(1, 0.0)

@@ -83,7 +83,7 @@ class RobotState:
             (:mod:`sim2real.deploy.spec.motion_blocks`).
         motion_time: A phase-clocked policy's (a ``motion_phase`` block): (envs,) s since its
             motion started, the runtime's clock
-            (:class:`sim2real.deploy.runtime.motion_phase.MotionPhaseClock`); else None.
+            (:class:`sim2real.deploy.core.phase_clock.MotionPhaseClock`); else None.
         height_scan: A policy with a ``height_scan`` block: (envs, points) m, the sensor's
             height above the terrain at each point of its scan, the last map that arrived
             (:class:`sim2real.deploy.runtime.height_map.HeightMap`); else None.

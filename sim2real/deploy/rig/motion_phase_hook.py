@@ -8,7 +8,7 @@ the stops during it, and the joints' error against the policy's targets (rad RMS
 tick's true joint angles, after the tick's physics, against the target that tick commanded,
 while the motion clock is below ``T``; the plant's truth in simulation, the estimate otherwise).
 The motion clock is the runtime's
-(:class:`~sim2real.deploy.runtime.motion_phase.MotionPhaseClock`).
+(:class:`~sim2real.deploy.core.phase_clock.MotionPhaseClock`, its floating-base tick's).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from sim2real.deploy.rig.hooks import RunHook
 
 
 class MotionPhaseHook(RunHook):
-    """The figures of the module docstring for every env of ``rig`` (its runtime has a
+    """The figures of the module docstring for every env of ``rig`` (its runtime's tick has a
     ``phase_clock``); ``length``: the motion's ``T``, s (the ``motion_phase`` block's period)."""
 
     name = "motion_phase"
@@ -36,7 +36,7 @@ class MotionPhaseHook(RunHook):
         self._playing = np.zeros(envs, dtype=bool)
 
     def after_tick(self, r) -> None:
-        clock = r.phase_clock
+        clock = r.base_tick.phase_clock
         running = r.mode == RUNNING
         self.plays += running & (clock.ticks == 0)
         # a play that ends (any mode but RUNNING) before T: a stop cut it short
@@ -77,7 +77,7 @@ class MotionPhaseHook(RunHook):
 def motion_phase_hook(rig) -> MotionPhaseHook | None:
     """The hook of a rig whose runtime has a motion clock (its policy's ``motion_phase`` block's
     period the motion's length), else None."""
-    if getattr(rig.runtime, "phase_clock", None) is None:
+    if getattr(rig.runtime.base_tick, "phase_clock", None) is None:
         return None
     block = next(b for b in rig.runtime.spec.observation_blocks if b.name == "motion_phase")
     return MotionPhaseHook(rig, block.period)

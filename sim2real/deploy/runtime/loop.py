@@ -33,7 +33,6 @@ from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
 from sim2real.deploy.runtime.height_map import height_map_stage
-from sim2real.deploy.runtime.motion_phase import phase_clock_for
 from sim2real.deploy.runtime.run_loop import RunLoop
 from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
@@ -129,10 +128,6 @@ class Runtime:
         self.state: RobotState = kind.state(robot, envs)
         #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
-        #: a phase-clocked policy's motion clock (RobotState.motion_time; else None)
-        self.phase_clock = phase_clock_for(self.spec, envs, self.dt)
-        if self.phase_clock is not None:
-            self.state.motion_time = self.phase_clock.time
         self.goal = np.zeros((envs, 3))
         #: a height_scan policy: its elevation map (stale: a safe stop; else None)
         self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
@@ -398,8 +393,6 @@ class Runtime:
             self.kinematics.update(state)
             self.base_tick.update(frame, state)  # a floating base: IMU, contacts, clock; falls
             self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
-            if self.phase_clock is not None:  # this tick's mode: RUNNING plays the motion
-                self.phase_clock.advance(self.mode)
             st[2] = clock_ns()
             obs = self._observe(state)
             st[3] = clock_ns()

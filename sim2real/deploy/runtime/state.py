@@ -71,9 +71,6 @@ class RuntimeState:
                 fields[f"state/{name}"] = getattr(st, name)
             for name, value in vars(st.base).items():
                 fields[f"state/base/{name}"] = value
-        if rt.phase_clock is not None:  # a phase-clocked policy's motion clock
-            fields["motion_phase/ticks"] = rt.phase_clock.ticks
-            fields["motion_phase/time"] = rt.phase_clock.time
         return fields
 
     def _shared_fields(self) -> dict[str, np.ndarray]:

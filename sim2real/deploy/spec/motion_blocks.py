@@ -14,16 +14,10 @@ defines two terms from the reference clip:
   bodies carry no rotation of their own in unitree_mujoco's ``g1_29dof.xml``
   (``tests/test_motion_blocks.py`` checks it against MuJoCo's ``xquat`` of ``torso_link``).
 
-A phase-clocked motion policy (rl_sar's ``RoboMimic_Deploy/phase``, RoboMimic_Deploy's
-``Dance``: a dance learned whole, no clip read at run time) reads a third:
-
-- ``motion_phase`` (1): ``t / T``, ``t`` the time since its motion started (s, the runtime's
-  :class:`~sim2real.deploy.runtime.motion_phase.MotionPhaseClock`, ``RobotState.motion_time``),
-  ``T`` the block's ``period`` (the motion's length, s): a ramp from 0 at the start to 1 at the
-  motion's end, not clamped (rl_sar's ``rl_sdk.cpp`` computes ``episode_length_buf x dt x
-  decimation / motion_length`` as it is; RoboMimic_Deploy's ``Dance.run`` and rl_sar's exported
-  module clamp the newest frame's to 1 themselves). Where a stack's first tick reads more than
-  0 (rl_sar counts its first tick as one), the block's ``offset`` says so.
+A phase-clocked policy (rl_sar's ``RoboMimic_Deploy/phase``; no clip at run time) reads
+``motion_phase`` (1): ``t / T``, ``t`` the runtime's motion clock (``RobotState.motion_time``,
+:class:`~sim2real.deploy.core.phase_clock.MotionPhaseClock`), ``T`` the block's ``period``, not
+clamped (``rl_sdk.cpp``); a stack whose first tick reads more than 0 says so in the offset.
 
 The first two read what the motion task writes into ``RobotState.motion`` (envs, 2n + 4): the clip's
 joint angles (n) and velocities (n) in the robot's joint order, then the reference anchor

@@ -449,7 +449,7 @@ class PolicySpec:
         d = asdict(self)
         d["observation"] = d.pop("observation_blocks")
         for block in d["observation"]:
-            if not block["period"]:  # gait_phase, motion_phase only: other blocks write what they wrote before
+            if not block["period"]:  # gait_phase, motion_phase: others write what they wrote before
                 del block["period"]
             if not block["components"]:
                 del block["components"]

@@ -19,17 +19,10 @@ config.yaml's keys win over base.yaml's. What it says, as rl_sar's code uses it:
   (``commands_scale``), ``lin_vel`` (``lin_vel_scale``), ``dof_pos`` (about ``default_dof_pos``,
   ``dof_pos_scale``; the entries of ``wheel_indices`` set to 0: a wheel's angle is never seen),
   ``dof_vel`` (``dof_vel_scale``), ``actions`` (the previous raw action);
-  ``whole_body_tracking/motion_command`` and ``motion_anchor_ori_b`` (the torso from the
-  ``waist_joint_indices`` slots; :mod:`sim2real.deploy.spec.motion_blocks`); ``motion_file``: the
-  clip beside config.yaml, played at ``1 / (dt x decimation)`` Hz (its fsm's ``MotionLoader``),
-  its columns in the motor slots' order (``joint_names``); ``RoboMimic_Deploy/phase`` (a
-  phase-clocked dance): ``episode_length_buf x dt x decimation / motion_length``, the ticks
-  since the fsm state's ``Enter`` (``RL_Sim::RunModel`` counts one before the observation, so
-  its first tick reads one control period: the block's offset ``-period / T``), ``T`` the
-  motion's length, which rl_sar sets in its fsm, not in config.yaml (:data:`MOTION_LENGTHS`; a
-  ``motion_length`` key in config.yaml, RoboMimic_Deploy's ``Dance.yaml`` name, wins):
-  block ``motion_phase`` (:mod:`sim2real.deploy.spec.motion_blocks`), the runtime's clock from
-  the first RUNNING tick.
+  ``whole_body_tracking/motion_command``, ``motion_anchor_ori_b`` (the torso from the
+  ``waist_joint_indices`` slots; :mod:`sim2real.deploy.spec.motion_blocks`), ``motion_file`` (the
+  clip beside config.yaml at ``1 / (dt x decimation)`` Hz, its fsm's ``MotionLoader``, columns
+  in the slots' order of ``joint_names``); ``RoboMimic_Deploy/phase``: ``motion_phase`` (:func:`_phase`).
   ``observations_history``: the frames read, 0 the newest (``observations_history_priority``
   ``time``: whole frames; ``term``: each term's frames in turn); empty: the present only.
 - ``action_scale``, ``clip_actions_lower``/``_upper``: ``target = default_dof_pos + scale x

@@ -72,7 +72,7 @@ def _print_motion_phase(p: dict, loco: dict | None) -> None:
     print(
         f"  motion phase      t / T over T = {p['length_s']:g} s: played {p['plays']}x, "
         f"{100 * p['completed']:.1f} % completed, {p['stopped']} cut short by a stop; joint "
-        f"error against the policy's targets {rms} over {p['ticks']} ticks; falls {falls}"
+        f"error against the policy's targets {rms} over {p['ticks']} ticks; falls in the run {falls}"
     )
 
 

@@ -98,6 +98,20 @@ def test_the_motion_clock_survives_the_runtime_state_dict(go2, phase_policy):
     np.testing.assert_allclose(_phase(again), expected[1], atol=1e-7)
 
 
+def test_the_policys_own_loop_plays_the_motion_on(go2, phase_policy):
+    """OwnLoop (the soak's fall replay) on a runtime's state: the motion time moves one period a
+    tick from where the runtime left it, never frozen."""
+    from sim2real.deploy.rig.own_loop import OwnLoop
+
+    rt = _runtime(go2, phase_policy)
+    rt.run(10)
+    before = rt.state.motion_time.copy()
+    loop = OwnLoop(rt.policy, rt.backend, rt.state, rt.goal, rt.dt, rt.time, rt.ticks)
+    for _ in range(5):
+        loop.tick()
+    np.testing.assert_allclose(rt.state.motion_time, before + 5 * rt.dt)
+
+
 def test_the_clock_alone_counts_running_ticks_and_restores_its_state():
     """From the modes the previous tick ended in: RUNNING plays on one period, else 0."""
     clock = MotionPhaseClock(3, 0.02)

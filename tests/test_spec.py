@@ -396,10 +396,10 @@ def test_every_registered_kind_has_a_kernel_branch_and_a_numpy_writer():
 
     codes = [k.kernel_code for k in KINDS.values() if not k.numpy_only]
     assert sorted(codes) == sorted(kernel.BRANCHES)  # one kind per branch, no branch unused
-    # a kind without a branch states why: the motion-tracking blocks and the height scan (an
-    # input the kernel does not take) run in numpy
+    # a kind without a branch states why: the motion-tracking blocks, the motion phase (the
+    # runtime's motion clock) and the height scan (inputs the kernel does not take) run in numpy
     numpy_only = sorted(k.name for k in KINDS.values() if k.kernel_code is None)
-    assert numpy_only == ["height_scan", "motion_anchor_ori_b", "motion_command"]
+    assert numpy_only == ["height_scan", "motion_anchor_ori_b", "motion_command", "motion_phase"]
     assert all(k.numpy_only for k in KINDS.values() if k.kernel_code is None)
     assert all(callable(k.numpy) and k.units for k in KINDS.values())
 

@@ -221,6 +221,7 @@ def build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, m
             hook refuses its options.
     """
     from sim2real.deploy.rig.hooks import registered_hooks
+    from sim2real.deploy.rig.motion_phase_hook import motion_phase_hook
     from sim2real.deploy.rig.rig import LatchedStopHook, MotionHook, Rig
 
     policy = next(iter(policies.values()))
@@ -244,6 +245,9 @@ def build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, m
             task.update(task="tracking", motion=motion, motion_start_after=args.motion_start_after)
         rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
         rig.add(MotionHook(rig))
+        phase = motion_phase_hook(rig)  # a phase-clocked policy: its motion's figures
+        if phase is not None:
+            rig.add(phase)
         for entry in registered_hooks().values():  # --ros2, --print-joints, --video, ...
             hook = entry.build(args, rig)
             if hook is not None:

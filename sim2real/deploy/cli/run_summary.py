@@ -56,11 +56,24 @@ def _print_task(r: dict) -> None:
         v = r.get("violations") or {}
         excused = {"ticks": v.get("reference_contact_ticks", 0)}
         _print_tracking(r["tracking"], loco, excused)
+    if r.get("motion_phase") is not None:
+        _print_motion_phase(r["motion_phase"], loco)
     if loco is not None and loco.get("true_falls", 0) > loco.get("runtime_falls", 0):
         print(
             f"  TRUE FALLS        {loco['true_falls']} of the true base (sim), of which the "
             f"runtime detected {loco['runtime_falls']}: the run fails (exit code 2)"
         )
+
+
+def _print_motion_phase(p: dict, loco: dict | None) -> None:
+    """Print a phase-clocked policy's motion line (:mod:`sim2real.deploy.rig.motion_phase_hook`)."""
+    rms = "n/a" if p["joint_rms_rad"] is None else f"{p['joint_rms_rad']:.4f} rad RMS"
+    falls = "n/a" if loco is None else loco["falls"]
+    print(
+        f"  motion phase      t / T over T = {p['length_s']:g} s: played {p['plays']}x, "
+        f"{100 * p['completed']:.1f} % completed, {p['stopped']} cut short by a stop; joint "
+        f"error against the policy's targets {rms} over {p['ticks']} ticks; falls in the run {falls}"
+    )
 
 
 def _print_tracking(t: dict, loco: dict | None, excused: dict | None = None) -> None:

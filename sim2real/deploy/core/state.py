@@ -81,6 +81,9 @@ class RobotState:
             joint angles (n) rad and velocities (n) rad/s in the robot's joint order, then its
             anchor quaternion ``w x y z`` in the world frame, yaw-aligned; None without one
             (:mod:`sim2real.deploy.spec.motion_blocks`).
+        motion_time: A phase-clocked policy's (a ``motion_phase`` block): (envs,) s since its
+            motion started, the runtime's clock
+            (:class:`sim2real.deploy.core.phase_clock.MotionPhaseClock`); else None.
         height_scan: A policy with a ``height_scan`` block: (envs, points) m, the sensor's
             height above the terrain at each point of its scan, the last map that arrived
             (:class:`sim2real.deploy.runtime.height_map.HeightMap`); else None.
@@ -102,6 +105,7 @@ class RobotState:
     command: np.ndarray | None = None
     clock: np.ndarray | None = None
     motion: np.ndarray | None = None
+    motion_time: np.ndarray | None = None
     height_scan: np.ndarray | None = None
     sensed_orientation: np.ndarray | None = None
 

@@ -1,8 +1,12 @@
 """``policy-export --inspect`` of torch files: our checkpoint, rsl_rl, TorchScript, SB3 zips.
 
-Nothing is executed from the file: torch files load with ``weights_only=True``, SB3 zips are read
-as a state dict and JSON, pickled class names inside SB3's ``data`` are read from the pickle
-opcodes, TorchScript is loaded with ``torch.jit.load`` (as ``policy-export`` does) but not run.
+No Python is executed from the file: torch files load with ``weights_only=True``, SB3 zips are
+read as a state dict and JSON, pickled class names inside SB3's ``data`` are read from the pickle
+opcodes, TorchScript is loaded with ``torch.jit.load`` (as ``policy-export`` does) and its
+``forward`` (TorchScript operators, no Python) run on one probe to read its sizes
+(:func:`torchscript_io`): a module may wrap its network (rl_sar's RoboMimic export reshapes a
+376-entry history into the 380 its inner network reads and scatters 23 outputs into 29), so its
+first and last weight matrices do not give them.
 Each returns :func:`~sim2real.deploy.export.inspect_policy.inspect_file`'s dict without ``file``, or raises
 :class:`~sim2real.deploy.export.errors.InspectError` naming the file and why.
 """
@@ -162,6 +166,42 @@ def _sb3_space(data: Mapping, key: str) -> dict[str, Any] | None:
     return out
 
 
+def torchscript_io(net, width: int) -> tuple[int, int] | None:
+    """``(obs, action)`` entries a TorchScript module's ``forward`` takes and answers, by running
+    it on one ``(1, width)`` probe (``width``: its first weight matrix's input, the most it may
+    read): the observation is as wide as the last probe entry the output depends on (the
+    gradient of a random projection of the output, nonzero almost surely for an entry read),
+    checked by running the module again on that width; the action the output's last axis.
+    None: the module does not run on the probe (another input than one tensor, an error).
+
+    A network that reads every entry (an MLP) keeps ``width``; one that slices its input
+    (rl_sar's ``DanceWrapper``: 376 of a 380-wide probe) gets the slice's end."""
+    import torch
+
+    gen = torch.Generator().manual_seed(0)
+    try:
+        x = torch.randn(1, width, generator=gen, requires_grad=True)
+        out = net(x)
+        if not isinstance(out, torch.Tensor) or out.ndim < 1:
+            return None
+        (grad,) = torch.autograd.grad(
+            out, x, torch.randn(out.shape, generator=gen), allow_unused=True
+        )
+        action = int(out.shape[-1])
+        if grad is None:
+            return width, action
+        used = torch.nonzero(grad.reshape(-1)).reshape(-1)
+        obs = int(used[-1]) + 1 if used.numel() else width
+        if obs != width:
+            with torch.no_grad():
+                again = net(torch.zeros(1, obs))
+            if tuple(again.shape) != tuple(out.shape):
+                return width, action
+        return obs, action
+    except Exception:  # noqa: BLE001 - TorchScript raises its own error types
+        return None
+
+
 def inspect_torchscript(path: Path) -> dict[str, Any]:
 
     from sim2real.deploy.export.torchscript import load_torchscript
@@ -201,18 +241,17 @@ def inspect_torchscript(path: Path) -> dict[str, Any]:
         details["layout"] = LAYOUT
     elif buffers:
         details["note"] = "buffers present: policy-export refuses the file if forward modifies them"
+    obs = int(first.shape[1]) if first is not None else "?"
+    act = int(last.shape[0]) if last is not None else "?"
+    if first is not None and not state:  # a stateless forward: read by running it once
+        io = torchscript_io(net, obs)
+        if io is not None and io != (obs, act):
+            details["network layers (first in, last out)"] = [obs, act]
+            obs, act = io
     return {
         "format": fmt,
-        "inputs": [
-            tensor_entry(
-                "obs", ["batch", int(first.shape[1]) if first is not None else "?"], "float32"
-            )
-        ],
-        "outputs": [
-            tensor_entry(
-                "action", ["batch", int(last.shape[0]) if last is not None else "?"], "float32"
-            )
-        ],
+        "inputs": [tensor_entry("obs", ["batch", obs], "float32")],
+        "outputs": [tensor_entry("action", ["batch", act], "float32")],
         "state": state,
         "metadata": {},
         "details": details,

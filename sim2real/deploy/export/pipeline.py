@@ -108,7 +108,7 @@ def parity_errors(f: dict[str, Any]) -> str:
     (an absolute tolerance's reason said once)."""
     parts = [
         ("", f"{f['samples']} observations"),
-        ("replay_", f"the {f['replay_ticks']}-tick closed-loop replay"),
+        ("replay_", f"the {f.get('replay_ticks')}-tick closed-loop replay"),
         ("state_", "the recurrent state"),
     ]
     said, text = "", []

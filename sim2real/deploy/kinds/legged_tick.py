@@ -5,8 +5,9 @@ clock, the stale IMU's stop and the fall check's (compiled as two calls bound to
 arrays), and the IMU's own attitude where it sends one (``RobotState.sensed_orientation``: the
 source of a motion-tracking policy's anchor, as rl_sar's G1 loop reads
 ``imu_state.quaternion``); after the smoother, the damped command of every env in a safe stop
-(a legged robot's every stop lays it down). A fixed base adds none
-(:class:`sim2real.deploy.kinds.arm.FixedBase`).
+(a legged robot's every stop lays it down). A phase-clocked policy's motion clock
+(:class:`~sim2real.deploy.core.phase_clock.MotionPhaseClock`) is the stage's too, advanced first.
+A fixed base adds none (:class:`sim2real.deploy.kinds.arm.FixedBase`).
 
 The stage is given its runtime (:class:`~sim2real.deploy.runtime.loop.Runtime`) and reads its
 public arrays (``mode``, ``time``, ``lying_expected``, ``height_map``, ``supervision``); it
@@ -22,6 +23,7 @@ import pinocchio as pin
 
 from sim2real.deploy.core.attitude import quat_multiply
 from sim2real.deploy.core.modes import RAMP_IN, RUNNING, SAFE_STOP
+from sim2real.deploy.core.phase_clock import phase_clock_for
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kernels.calls import bind, fits
@@ -42,6 +44,8 @@ class LeggedTick:
         compiled: The work after the base estimate runs compiled (:meth:`screens`); False:
             numpy's path (the reference).
         bound: The compiled calls' arrays and calls (:meth:`screens`), or None.
+        phase_clock: The motion clock of a policy with a ``motion_phase`` block
+            (``RobotState.motion_time`` its time; a part of the runtime's state), else None.
     """
 
     fusable = False
@@ -60,6 +64,7 @@ class LeggedTick:
         #: base (the estimator's ``imu_to_base``): ``q_base = q_site * site_to_base``
         x, y, z, w = pin.Quaternion(np.asarray(base_estimator.imu_to_base, float)).coeffs()
         self._site_to_base = np.array([w, -x, -y, -z])
+        self.phase_clock = phase_clock_for(runtime.spec, runtime.state, runtime.dt)
 
     def bind(self) -> None:
         """Compile (or load) and bind the tick's calls before its first tick."""
@@ -97,8 +102,12 @@ class LeggedTick:
         self.stages[0].reset(t, envs=envs)
 
     def parts(self) -> dict:
-        """The stages whose state is the runtime's: ``base_estimator``, ``fall_detector``."""
-        return {"base_estimator": self.stages[0], "fall_detector": self.stages[1]}
+        """The stages whose state is the runtime's: ``base_estimator``, ``fall_detector`` and a
+        phase-clocked policy's ``motion_phase`` clock."""
+        parts = {"base_estimator": self.stages[0], "fall_detector": self.stages[1]}
+        if self.phase_clock is not None:
+            parts["motion_phase"] = self.phase_clock
+        return parts
 
     def damping(self, mode: np.ndarray) -> np.ndarray:
         """(envs,) bool: the envs whose command damps: SAFE_STOP or FAULTED (holding its stance
@@ -130,6 +139,8 @@ class LeggedTick:
         a height scan, :mod:`sim2real.deploy.runtime.height_map`)."""
         rt = self.rt
         est, fd = self.stages
+        if self.phase_clock is not None:  # the modes the previous tick ended in
+            self.phase_clock.advance(rt.mode)
         if rt.height_map is not None:
             rt.supervision.safe_stop(rt.height_map.update(frame), "stale_sensor")
         est.update(frame, state.q, state.dq, out=state.base)

@@ -84,10 +84,14 @@ class OwnLoop:
         return self._target
 
     def advance(self) -> None:
-        """One control period of the plant on the written targets; the clock moves on."""
+        """One control period of the plant on the written targets; the clock moves on, and a
+        phase-clocked policy's motion time (``state.motion_time``: the loop is always RUNNING,
+        its motion plays on)."""
         self.plant.advance()
         self.ticks += 1
         self.time += self.dt
+        if self.state.motion_time is not None:
+            self.state.motion_time += self.dt
 
     def tick(self) -> None:
         """One tick: the fault injector's plant-side faults at the loop's time, :meth:`act`,

@@ -43,7 +43,7 @@ def observation_problems(blocks, n: int, driven: tuple[int, ...]) -> list[str]:
             )
         if kind.periodic and not (np.isfinite(b.period) and b.period > 0):
             return _problem(f"{where}: period must be a positive number of s, got {b.period}")
-        if (b.stand_below or b.stand_phase) and not kind.periodic:
+        if (b.stand_below or b.stand_phase) and b.name != "gait_phase":
             return _problem(f"{where}: stand_below and stand_phase are for gait_phase blocks only")
         if not (np.isfinite(b.stand_below) and b.stand_below >= 0):
             return _problem(

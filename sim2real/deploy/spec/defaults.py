@@ -125,7 +125,7 @@ def _block(kind: str, robot: Robot, legged: bool, wrapping: tuple, reach: float)
     elif kind in KINDS and KINDS[kind].needs_base:
         size = robot.n_feet if KINDS[kind].per_foot else KINDS[kind].size
         scale = LEGGED_SCALES.get(kind, (1.0,) * size)
-        period = GAIT_PERIOD if KINDS[kind].periodic else 0.0
+        period = GAIT_PERIOD if kind == "gait_phase" else 0.0  # motion_phase: no default T
         return ObservationBlock(kind, size, tuple(scale), (0.0,) * size, period=period)
     elif kind == "joint_position_sincos":
         k = len(wrapping)

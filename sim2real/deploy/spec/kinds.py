@@ -299,6 +299,19 @@ register_kind(
         numpy_only=motion_blocks.NUMPY_REASON,
     )
 )
+register_kind(
+    ObservationKind(
+        "motion_phase",
+        "t / T (1): t the time since the motion started (the runtime's motion clock), s, T the "
+        "block's period (the motion's length), s; unscaled, not clamped",
+        motion_blocks.motion_phase,
+        None,
+        size=1,
+        periodic=True,
+        needs_base=True,
+        numpy_only=motion_blocks.PHASE_REASON,
+    )
+)
 _scan_reason = (
     "the terrain heights are an input the compiled kernel does not take; the plan runs the numpy "
     "writers (the same arithmetic)"

@@ -17,7 +17,12 @@ defines two terms from the reference clip:
   where the robot's IMU sends one (rl_sar's ``RL_Real::RunModel`` on the G1: ``base_quat =
   imu_state.quaternion``), else the base estimate's.
 
-Both read what the motion task writes into ``RobotState.motion`` (envs, 2n + 4): the clip's
+A phase-clocked policy (rl_sar's ``RoboMimic_Deploy/phase``; no clip at run time) reads
+``motion_phase`` (1): ``t / T``, ``t`` the runtime's motion clock (``RobotState.motion_time``,
+:class:`~sim2real.deploy.core.phase_clock.MotionPhaseClock`), ``T`` the block's ``period``, not
+clamped (``rl_sdk.cpp``); a stack whose first tick reads more than 0 says so in the offset.
+
+The first two read what the motion task writes into ``RobotState.motion`` (envs, 2n + 4): the clip's
 joint angles (n) and velocities (n) in the robot's joint order, then the reference anchor
 quaternion ``w x y z`` in the world frame, already yaw-aligned
 (:mod:`sim2real.deploy.tasks.motion.clock`). Quaternions here are ``w x y z``, arrays (..., 4).
@@ -43,8 +48,13 @@ NUMPY_REASON = (
 )
 
 
-#: The kinds these writers are (:mod:`sim2real.deploy.spec.kinds`).
+#: The kinds these writers are (:mod:`sim2real.deploy.spec.kinds`) that read the clip.
 KIND_NAMES = ["motion_command", "motion_anchor_ori_b"]
+#: Why ``motion_phase`` runs in numpy.
+PHASE_REASON = (
+    "a motion phase block reads the runtime's motion clock (RobotState.motion_time), which the "
+    "compiled kernel has no input for"
+)
 
 
 def quat_conj(q: np.ndarray) -> np.ndarray:
@@ -164,3 +174,14 @@ def motion_anchor_ori_b(state, goal, raw, block, vec, rot) -> None:
     n = state.q.shape[1]
     torso = torso_quat(anchor_base_orientation(state), state.q[:, block.joints])
     raw[:] = anchor_ori_b(torso, motion[:, 2 * n : 2 * n + 4])
+
+
+def motion_phase(state, goal, raw, block, vec, rot) -> None:
+    """Writer of ``motion_phase`` (module docstring): ``raw`` (envs, 1) ``t / T``."""
+    t = getattr(state, "motion_time", None)
+    if t is None:
+        raise MotionBlockError(
+            f"observation: block '{block.kind.name}' needs the runtime's motion clock "
+            "(RobotState.motion_time)"
+        )
+    raw[:, 0] = np.asarray(t, float) / block.period

@@ -104,7 +104,9 @@ class ObservationBlock:
         offset: Per-entry offset, length ``size``.
         clip: Symmetric clip after normalization.
         joints: Joint indices it reads (joint blocks only), in order.
-        period: ``gait_phase`` only: the gait clock's period, s (> 0); 0 for other blocks.
+        period: ``gait_phase``: the gait clock's period, s (> 0); ``motion_phase``: the
+            motion's length ``T``, s (> 0; :mod:`sim2real.deploy.spec.motion_blocks`); 0 for
+            other blocks.
         components: The vector kinds' and ``gait_phase``'s blocks only: the entries of the raw
             vector it reads, in order (``(2,)``: the yaw rate of ``velocity_command``;
             ``(1, 3, 0, 2)``: a two-foot clock ``cos p, cos(p + pi), sin p, sin(p + pi)``);
@@ -447,7 +449,7 @@ class PolicySpec:
         d = asdict(self)
         d["observation"] = d.pop("observation_blocks")
         for block in d["observation"]:
-            if not block["period"]:  # gait_phase only: other blocks write what they wrote before
+            if not block["period"]:  # gait_phase, motion_phase: others write what they wrote before
                 del block["period"]
             if not block["components"]:
                 del block["components"]

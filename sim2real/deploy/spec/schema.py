@@ -115,7 +115,10 @@ class ObservationBlockDocument(_Doc):
     period: float | None = Field(
         default=None,
         gt=0,
-        description="gait_phase only: the gait clock's period, s (p = 2 pi t / period).",
+        description=(
+            "gait_phase: the gait clock's period, s (p = 2 pi t / period); motion_phase: the "
+            "motion's length T, s (the block reads t / T); other blocks: none."
+        ),
     )
     stand_below: float | None = Field(
         default=None,

@@ -19,10 +19,10 @@ config.yaml's keys win over base.yaml's. What it says, as rl_sar's code uses it:
   (``commands_scale``), ``lin_vel`` (``lin_vel_scale``), ``dof_pos`` (about ``default_dof_pos``,
   ``dof_pos_scale``; the entries of ``wheel_indices`` set to 0: a wheel's angle is never seen),
   ``dof_vel`` (``dof_vel_scale``), ``actions`` (the previous raw action);
-  ``whole_body_tracking/motion_command`` and ``motion_anchor_ori_b`` (the torso from the
-  ``waist_joint_indices`` slots; :mod:`sim2real.deploy.spec.motion_blocks`); ``motion_file``: the
-  clip beside config.yaml, played at ``1 / (dt x decimation)`` Hz (its fsm's ``MotionLoader``),
-  its columns in the motor slots' order (``joint_names``).
+  ``whole_body_tracking/motion_command``, ``motion_anchor_ori_b`` (the torso from the
+  ``waist_joint_indices`` slots; :mod:`sim2real.deploy.spec.motion_blocks`), ``motion_file`` (the
+  clip beside config.yaml at ``1 / (dt x decimation)`` Hz, its fsm's ``MotionLoader``, columns
+  in the slots' order of ``joint_names``); ``RoboMimic_Deploy/phase``: ``motion_phase`` (:func:`_phase`).
   ``observations_history``: the frames read, 0 the newest (``observations_history_priority``
   ``time``: whole frames; ``term``: each term's frames in turn); empty: the present only.
 - ``action_scale``, ``clip_actions_lower``/``_upper``: ``target = default_dof_pos + scale x
@@ -34,7 +34,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sim2real.deploy.spec.foreign.contract import ForeignContract, MotionSource, Term
+from sim2real.deploy.spec.foreign.contract import (
+    ForeignContract,
+    MotionSource,
+    Term,
+    positive_number,
+)
 
 NAME = "rl_sar"
 CONFIG = Path("config.yaml")
@@ -53,7 +58,16 @@ TERMS = {
     "actions": ("last_action", -1, None),
     "whole_body_tracking/motion_command": ("motion_command", -2, None),
     "whole_body_tracking/motion_anchor_ori_b": ("motion_anchor_ori_b", 6, None),
+    "RoboMimic_Deploy/phase": ("motion_phase", 1, None),
 }
+#: The motion's length ``T``, s, of each phase-clocked policy rl_sar ships, by its config key:
+#: rl_sar's fsm sets it on entering the policy's state (``fsm_robot/fsm_g1.hpp``,
+#: ``RLFSMStateRLRoboMimicCharleston::Enter``: ``rl.motion_length = 18.0``; RoboMimic_Deploy's
+#: ``policy/dance/config/Dance.yaml``: ``motion_length: 18.0``).
+MOTION_LENGTHS = {"g1/robomimic/charleston": 18.0}
+#: config.yaml's key for the motion's length (RoboMimic_Deploy's ``Dance.yaml`` name; rl_sar
+#: itself reads none).
+LENGTH_KEY = "motion_length"
 #: The waist slots rl_sar's anchor term reads (yaw, roll, pitch), from ``waist_joint_indices``.
 WAIST_KEY = "waist_joint_indices"
 
@@ -136,6 +150,7 @@ def read(facts) -> ForeignContract:
         )  # every term reads the same frames
     dt = float(keys.positive("dt", (int, float), "a number of seconds"))
     period = dt * int(keys.positive("decimation", (int,), "a whole number of physics steps"))
+    terms = tuple(_phase(t, cfg, key, period, fail, where) for t in terms)
     names = keys.slot_names(slots)
     policy_names = None if names is None else [names[s] for s in slots]
     notes = _notes(slots, policy_names, merged, key, facts.path.name, wheels)
@@ -292,6 +307,41 @@ def _waist(term: Term, cfg: dict, slots: tuple[int, ...], fail, where: str) -> T
             f"pitch joints (of {list(slots)}), got {waist!r}"
         )
     return Term(**{**term.__dict__, "joints": tuple(slots.index(int(s)) for s in waist)})
+
+
+def _phase(term: Term, cfg: dict, key, period: float, fail, where: str) -> Term:
+    """The ``RoboMimic_Deploy/phase`` term with its motion's length and first-tick offset (module
+    docstring); other terms as they are. Without a known length the term cannot be mapped (its
+    reason says where to give one); a ``motion_length`` that is not a positive number is
+    refused naming the file and key."""
+    if term.kind != "motion_phase":
+        return term
+    if LENGTH_KEY in cfg:
+        length, source = cfg[LENGTH_KEY], f"{where} '{LENGTH_KEY}'"
+        if not positive_number(length, (int, float)):
+            raise fail(
+                f"{where}: '{LENGTH_KEY}': expected the motion's length, s > 0, got {length!r}"
+            )
+    elif str(key) in MOTION_LENGTHS:
+        length = MOTION_LENGTHS[str(key)]
+        source = f"rl_sar's fsm for {key} (rl.motion_length)"
+    else:
+        return Term(
+            term.name, None, 1,
+            reason=(
+                f"the motion's length T: rl_sar sets it in its fsm (rl.motion_length), not in "
+                f"config.yaml; give '{LENGTH_KEY}: T' (s) in {where}"
+            ),
+        )  # fmt: skip
+    length = float(length)
+    return Term(
+        **{
+            **term.__dict__,
+            "period": length,
+            "offset": -period / length,
+            "source": f"t / T, T = {length:g} s from {source}; first tick t = {period:g} s",
+        }
+    )
 
 
 def _motion(cfg: dict, folder: Path, names, period: float, fail, where: str):

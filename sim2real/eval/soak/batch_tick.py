@@ -25,4 +25,6 @@ class BatchTick(RunHook):
         b = self.batch
         if b.terrain_figures is not None:  # before a stand-up moves the base, a capture holds it
             b.terrain_figures.tick(runtime, b.backend, b.task.tracker.falls)
+        if b.curriculum is not None:  # a curriculum walk's episodes that timed out: respawned
+            b.respawn_timed_out(runtime)
         b.bookkeeping(runtime)

@@ -58,15 +58,10 @@ class TerrainFigures:
         self.layouts, self.dt = list(layouts), float(control_period)
         k = self.envs = len(layouts)
         first = layouts[0]
-        for x in layouts[1:]:
-            if (x.origin, x.spacing, x.n, x.tiles) != (
-                first.origin,
-                first.spacing,
-                first.n,
-                first.tiles,
-            ):
-                raise ValueError("TerrainFigures: the envs' tiles must share one grid (one ranges)")
+        if any(x.grid != first.grid for x in layouts[1:]):
+            raise ValueError("TerrainFigures: the envs' tiles must share one grid (one ranges)")
         self._platform = np.stack([x.platform for x in layouts])  # (envs, n, n)
+        self._origins = np.array([x.origin for x in layouts], dtype=np.float64)  # (envs, 2)
         self._sums = np.zeros((k, 4))  # s on the platform, the feature, off; m on the feature
         self.platform_s, self.feature_s = self._sums[:, 0], self._sums[:, 1]
         self.off_s, self.feature_m = self._sums[:, 2], self._sums[:, 3]
@@ -100,11 +95,11 @@ class TerrainFigures:
     def locate(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(tile, on_platform)`` (envs,) of the envs' points ``xy`` (envs, 2) m, each on its
         own env's tiles (:func:`sim2real.eval.world.tile_parts.place`; the kernel's rule)."""
-        return place(xy, self.layouts[0], self._platform, np.arange(self.envs))
+        return place(xy, self.layouts[0], self._platform, np.arange(self.envs), self._origins)
 
     def _arguments(self) -> tuple:
         first = self.layouts[0]
-        grid = (first.origin, first.spacing, first.n, first.tiles, self.dt)
+        grid = (self._origins, first.spacing, first.n, first.rows, first.cols, self.dt)
         state = (self._sums, self.crossings, self.falls_on, self.falls_seen, self.anchor_tile)
         return (self._platform, *grid, *state, self.anchor_platform, self._fell_tile)
 

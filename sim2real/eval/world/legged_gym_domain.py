@@ -92,18 +92,19 @@ def read_legged_gym_config(path: str | Path, config_class: str | None = None) ->
         "terrain": terrain,
         "commands": resolved.section("commands"),
         "control": resolved.section("control"),
+        "env": {k: v for k, v in resolved.section("env").items() if isinstance(v, Setting)},
         "source": f"{resolved.file} ({resolved.name}, legged_gym)",
         "classes": resolved.classes,
         "env_files": env_files,  # the task's own folder first, then its bases' in order
     }
 
 
-def _terrain_refusals(terrain: dict) -> list[str]:
+def _terrain_refusals(terrain: dict, env: dict) -> list[str]:
     """Why the soak cannot build legged_gym's ``terrain`` class (its kinds past the fifth share,
     a mesh type it does not know; named), or nothing."""
     from sim2real.eval.world.terrain import TerrainRanges
 
-    table = terrain_table(terrain)
+    table = terrain_table(terrain, env)
     if table is None:
         return []
     try:
@@ -157,7 +158,7 @@ def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
                 group.read(context)
             except ValueError as exc:
                 refused.append(str(exc))
-    refused += _terrain_refusals(cfg["terrain"])
+    refused += _terrain_refusals(cfg["terrain"], cfg["env"])
     if not refused:
         try:
             text = "\n".join(domain_lines(context, math.sqrt(3.0))) + "\n"

@@ -140,7 +140,8 @@ def test_a_go2_soak_walks_its_episodes_respawns_on_its_level_and_a_resume_keeps_
 ):
     """18 s of go2 on ``discrete`` level 1 in 5-s episodes: a timed-out robot that walked less
     than half its command's distance goes down a level and is put at rest within 1 m (x and y)
-    of that level's tile centre, on the ground there, with a new command; the session's result counts its episodes (3 timeouts), the rule's moves, and the
+    of that level's tile centre, on the ground there, with a new command, the carry no
+    crossing; the session's result counts its episodes (3 timeouts), the rule's moves, and the
     seconds on each level, which add up to its time on the tiles; the report's line says so;
     resumed from its checkpoint at 12 s, the result is the uninterrupted run's."""
     from sim2real.eval.report.build import build_report
@@ -165,6 +166,8 @@ def test_a_go2_soak_walks_its_episodes_respawns_on_its_level_and_a_resume_keeps_
     ground = batch.backend.grounds[0]
     assert truth[2] - float(ground.height_at(truth[0], truth[1])) > 0.2  # on its feet, not in
     assert batch.task.schedule.t_command[0] == -np.inf  # a new command at its next tick
+    batch.rt.run(50, on_tick=batch.on_tick)  # RUNNING again at once: the carry crossed nothing
+    assert batch.rt.mode[0] == 2 and tuple(batch.terrain_figures.crossings[0]) == (0, 0)
 
     result = SessionBatch([config], tmp_path / "s", progress=False).run()[0]
     did = result["locomotion"]["on_terrain"]

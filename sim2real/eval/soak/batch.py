@@ -436,6 +436,8 @@ class SessionBatch:
         anchor = np.broadcast_to(self.robot.home, read.shape).copy()
         anchor[envs] = np.where(np.isfinite(read[envs]), read[envs], anchor[envs])
         self.rt.restart(envs, anchor, b.frame.time)
+        if self.terrain_figures is not None:  # put down by hand: anchored there, no crossing
+            self.terrain_figures.carried(envs, b)
         schedule = getattr(self.task, "schedule", None)
         if walk is not None and schedule is not None:
             schedule.resample(envs)

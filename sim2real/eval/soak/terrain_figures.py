@@ -14,7 +14,9 @@ central ``platform``, the ``feature`` around it, or ``off`` the tiles) and accou
   come onto the tile from its rim, the base reaches its platform, walking. Going onto the feature
   and back to the same platform, or back out over the same rim, crosses nothing. While not
   RUNNING (a fall, an operator's stand-up that puts the robot back at the start) the base's place
-  is followed but no crossing is counted. On ``stairs_down`` a crossing out goes down the steps,
+  is followed but no crossing is counted, and where an operator puts a robot down (a stand-up, a
+  curriculum walk's respawn: :meth:`TerrainFigures.carried`) it is anchored anew. On
+  ``stairs_down`` a crossing out goes down the steps,
   one in goes up them (``stairs_up`` and ``slope_up`` the other way round);
 - falls where they happened: each of the tracker's falls (:class:`sim2real.deploy.tasks.locomotion.
   CommandTracker` ``falls``, counted at the stop) placed on the part under the base at that tick
@@ -96,6 +98,17 @@ class TerrainFigures:
         """``(tile, on_platform)`` (envs,) of the envs' points ``xy`` (envs, 2) m, each on its
         own env's tiles (:func:`sim2real.eval.world.tile_parts.place`; the kernel's rule)."""
         return place(xy, self.layouts[0], self._platform, np.arange(self.envs), self._origins)
+
+    def carried(self, envs: np.ndarray, backend) -> None:
+        """The bases of ``envs`` (bool (envs,)) were put down by hand where ``backend``'s truth
+        has them now (an operator's stand-up; a curriculum walk's respawn on another tile):
+        anchored there, on the tile and part under them, so that the move crosses nothing (a
+        restarted robot at rest may be RUNNING again at its next tick, before the figures see
+        it moved)."""
+        xy = backend.true_base_state(self._truth)[:, :2]
+        tile, on = self.locate(xy)
+        self.anchor_tile[envs] = tile[envs]
+        self.anchor_platform[envs] = on[envs]
 
     def _arguments(self) -> tuple:
         first = self.layouts[0]

@@ -187,3 +187,41 @@ def test_a_go2_soak_walks_its_episodes_respawns_on_its_level_and_a_resume_keeps_
     assert {k: v for k, v in again.items() if k != "wall"} == {
         k: v for k, v in result.items() if k != "wall"
     }
+
+
+def test_our_rule_equals_himlocos_own_update_terrain_curriculum(stacks):
+    """HIMLoco's ``_update_terrain_curriculum`` itself (its checkout under ``SIM2REAL_STACKS``,
+    :mod:`tests.stacks`), run with torch on 200 episodes' ends (levels below the last, whose
+    move past it is a random level): the levels and the tile centres ours gives."""
+    import ast
+    import types
+
+    import torch
+
+    text = stacks.read("HIMLoco", "legged_gym/legged_gym/envs/base/legged_robot.py").decode()
+    cls = next(n for n in ast.parse(text).body if getattr(n, "name", "") == "LeggedRobot")
+    fn = next(f for f in cls.body if getattr(f, "name", "") == "_update_terrain_curriculum")
+    space = {"torch": torch}
+    exec(compile(ast.Module([fn], []), "legged_robot.py", "exec"), space)  # noqa: S102
+    rng = np.random.default_rng(3)
+    n, walk = 200, _walk(1)
+    layout = walk.layouts[0]
+    levels = rng.integers(0, WALK.num_rows - 1, n)
+    origins = np.array([[layout.centre(i, 0) for _ in range(1)] for i in range(WALK.num_rows)])
+    ends = origins[levels, 0] + rng.uniform(-6, 6, (n, 2))
+    commands = rng.uniform(-1, 1, (n, 3))
+    himloco = types.SimpleNamespace(
+        init_done=True, terrain=types.SimpleNamespace(env_length=WALK.terrain_length),
+        max_episode_length_s=WALK.episode_length_s, max_terrain_level=WALK.num_rows,
+        terrain_levels=torch.tensor(levels), terrain_types=torch.zeros(n, dtype=torch.long),
+        terrain_origins=torch.tensor(np.concatenate([origins, np.zeros((4, 1, 1))], -1)),
+        root_states=torch.tensor(np.concatenate([ends, np.zeros((n, 11))], 1)),
+        env_origins=torch.tensor(np.concatenate([origins[levels, 0], np.zeros((n, 1))], 1)),
+        commands=torch.tensor(commands),
+    )  # fmt: skip
+    space["_update_terrain_curriculum"](himloco, torch.arange(n))
+    for k in range(n):
+        walk.level[0], walk.centre[0] = levels[k], origins[levels[k], 0]
+        level, _ = walk.next_level(0, ends[k], commands[k, :2])
+        assert level == int(himloco.terrain_levels[k]), k
+        assert layout.centre(level, 0) == pytest.approx(himloco.env_origins[k, :2].numpy())

@@ -4,7 +4,7 @@
 legged_gym lays its terrain as a map of ``num_rows x num_cols`` tiles: row ``i`` (along x) is
 level ``i`` at difficulty ``i / num_rows``, column ``j`` (along y) a kind (``Terrain.curiculum``,
 legged_gym ``legged_gym/utils/terrain.py``, HIMLoco's copy ``legged_gym/legged_gym/utils/
-terrain.py:85-96``). A robot spawns at the centre of its tile (``env_origins[level, type]``,
+terrain.py:85-92``). A robot spawns at the centre of its tile (``env_origins[level, type]``,
 ``_get_env_origins``, HIMLoco ``legged_gym/envs/base/legged_robot.py:893-907``) plus a uniform
 +-1 m in x and y (``_reset_root_states``, ``legged_robot.py:529-532``), walks an episode of
 ``episode_length_s`` (20 s) or until it falls, and at its reset the game-inspired curriculum
@@ -23,14 +23,16 @@ Then it is respawned on its new level's tile with a new command (``reset_idx``:
 Here a session's ground is its kind's column: one tile per level along x, ``tiles`` tiles of the
 same kind along y (legged_gym's neighbouring columns hold other kinds; ours repeat the
 session's, so that one kind's figures are one kind's). The robot starts at the centre of its
-drawn level's tile (the plant's spawn, the world origin). :class:`CurriculumWalk` counts each
-env's RUNNING time in its episode; at ``episode_length_s`` (a timeout) or at the operator's
-stand-up after a stop (a fall, a latched fault: legged_gym's termination) it applies the rule,
-and the stand-up (:meth:`sim2real.eval.soak.batch.SessionBatch.stand_up`) puts the robot at
-rest on the new level's tile centre plus the +-1 m, raised to the ground there as at the start
+drawn level's tile (the plant's spawn, the world origin; legged_gym's first spawn is offset by
+the same +-1 m, ``_create_envs``, ``legged_robot.py:861``, ours is not).
+:class:`CurriculumWalk` counts each env's RUNNING time in its episode; at
+``episode_length_s`` (a timeout) or at the operator's stand-up after a stop (a fall, a latched
+fault: legged_gym's termination) it applies the rule, and the stand-up
+(:meth:`sim2real.eval.soak.batch.SessionBatch.stand_up`) puts the robot at rest on the new
+level's tile centre plus the +-1 m, raised to the ground there as at the start
 (:func:`sim2real.eval.world.terrain.spawn_height`), and its command schedule draws a new
-command at once. A timeout's respawn is an operator's
-restart without a fault (RAMP_IN), counted apart from the stand-ups after falls.
+command at once. A timeout's respawn is an operator's restart without a fault (RAMP_IN),
+counted apart from the stand-ups after falls.
 
 What each env did: episodes ended by a timeout and by a stop, moves up and down, its first and
 last level, and per level the RUNNING seconds its base spent on that row's tiles and the

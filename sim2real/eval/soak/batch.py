@@ -442,13 +442,6 @@ class SessionBatch:
         if walk is not None and schedule is not None:
             schedule.resample(envs)
 
-    def respawn_timed_out(self, runtime) -> None:
-        """A curriculum walk's timeouts this tick: their robots respawned on their next level's
-        tile (:meth:`stand_up` with ``end="timeout"``); a replay's copy respawns none."""
-        due = self.curriculum.tick(runtime, self.backend)
-        if self.curriculum_respawns and due.any():
-            self.stand_up(due, end="timeout")
-
     def _progress(self, done: bool = False) -> None:
         if not self.write_progress:
             return

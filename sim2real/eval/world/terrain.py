@@ -27,6 +27,12 @@ import numpy as np
 
 from sim2real.eval.world.floor import BORDER_PREFIX
 from sim2real.eval.world.terrain_choice import cumulative_proportions, kind_shares, legged_gym_kind
+from sim2real.eval.world.terrain_layout import (  # noqa: F401 - tile_grid is this module's too
+    start_tile,
+    tile_counts,
+    tile_difficulty,
+    tile_grid,
+)
 from sim2real.eval.world.terrain_tiles import (
     KINDS,
     UNBUILT_KINDS,
@@ -310,39 +316,6 @@ class GroundMap:
         z = (h[i, j] * (1 - a) * (1 - b) + h[i + 1, j] * a * (1 - b)
              + h[i, j + 1] * (1 - a) * b + h[i + 1, j + 1] * a * b)  # fmt: skip
         return np.where(inside, z, 0.0)
-
-
-def tile_grid(ranges: TerrainRanges) -> tuple[int, int, int]:
-    """``(n, border, start)`` in samples of ``horizontal_scale``: a tile's side (legged_gym's
-    ``int(terrain_width / horizontal_scale)``), the flat border's width, and the start's index
-    (the middle tile's centre) along either axis of a ``grid`` walk's :class:`GroundMap` (along
-    y of a curriculum walk's)."""
-    n = int(ranges.terrain_width / ranges.horizontal_scale)
-    border = int(ranges.border_size / ranges.horizontal_scale)
-    return n, border, border + (ranges.tiles // 2) * n + n // 2
-
-
-def tile_counts(ranges: TerrainRanges) -> tuple[int, int]:
-    """``(rows, cols)``: the session's tiles along x and y (``tiles x tiles``; a curriculum
-    walk's column: ``num_rows x tiles``, row ``i`` level ``i``)."""
-    return (ranges.num_rows if ranges.walk == "curriculum" else ranges.tiles), ranges.tiles
-
-
-def start_tile(draw: TerrainDraw) -> tuple[int, int]:
-    """``(row, col)``: the tile the session's robot starts on (the world origin at its centre):
-    the middle one, or on a curriculum walk its level's (legged_gym's ``env_origins[level,
-    type]``, ``_get_env_origins``) in the middle column."""
-    r = draw.ranges
-    if r.walk == "curriculum":
-        return int(draw.level), r.tiles // 2
-    return r.tiles // 2, r.tiles // 2
-
-
-def tile_difficulty(draw: TerrainDraw, row: int) -> float:
-    """The difficulty of row ``row``'s tiles: the draw's, or on a curriculum walk legged_gym's
-    ``i / num_rows`` (``Terrain.curiculum``)."""
-    r = draw.ranges
-    return row / r.num_rows if r.walk == "curriculum" else draw.difficulty
 
 
 def ground_map(draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim2real.eval.world.terrain import TerrainDraw, start_tile, tile_counts, tile_grid
+from sim2real.eval.world.terrain import TerrainDraw
+from sim2real.eval.world.terrain_layout import start_tile, tile_counts, tile_grid
 from sim2real.eval.world.terrain_tiles import platform_mask
 
 #: The parts of a tile a point can be on: its central platform, its feature, or off the tiles.

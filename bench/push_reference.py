@@ -155,7 +155,8 @@ def terrain_of(seed: int, args):
     """The :class:`~sim2real.eval.world.terrain.TerrainDraw` of seed ``seed``'s runs (None: the
     plane): ``--terrain KIND:SIZE`` (or ``KIND@LEVEL``) for every seed, or a ranges file's
     ``[terrain]`` drawn per seed (kind and level, as a soak session draws them); either laid out
-    in ``--terrain-tiles`` x ``--terrain-tiles`` tiles."""
+    in ``--terrain-tiles`` x ``--terrain-tiles`` tiles of its kind and level (a file's
+    ``walk = "curriculum"``, a soak's, is not walked here)."""
     from sim2real.eval.world.ranges_file import read_overrides
     from sim2real.eval.world.terrain import TerrainRanges, parse_terrain, sample_terrain
 
@@ -167,7 +168,8 @@ def terrain_of(seed: int, args):
         ranges = read_overrides(text).get("terrain")
         if ranges is None:
             raise BadInput(f"--terrain {text}: the file has no [terrain] table")
-        ranges = TerrainRanges(**(ranges | {"tiles": tiles}))
+        # one tile's grid per seed: a push run has no episodes (a curriculum walk is a soak's)
+        ranges = TerrainRanges(**(ranges | {"tiles": tiles, "walk": "grid"}))
         return sample_terrain(np.random.default_rng([seed, 2]), ranges)
     return parse_terrain(text, TerrainRanges(tiles=tiles))
 

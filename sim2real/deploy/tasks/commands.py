@@ -323,6 +323,12 @@ class CommandSchedule:
         if headings:
             self._steer(runtime)
 
+    def resample(self, envs: np.ndarray) -> None:
+        """Draw a new command for the envs of ``envs`` (bool mask (envs,)) at their next RUNNING
+        tick, whatever their period's clock (legged_gym's ``_resample_commands`` in
+        ``reset_idx``: a respawned robot's new episode begins with a new command)."""
+        self.t_command[np.asarray(envs, dtype=bool)] = -np.inf
+
     def _steer(self, runtime) -> None:
         """The yaw-rate command of the RUNNING envs with a heading (``self._yaw``: this tick's
         estimate), by :mod:`sim2real.deploy.tasks.heading_kernel`'s kernels: theirs with the

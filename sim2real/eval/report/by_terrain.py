@@ -64,7 +64,47 @@ def terrain_rows(results: list[dict]) -> list[dict] | None:
                 **_on_terrain(rs),
             }
         )
+        walks = [(r["locomotion"].get("on_terrain") or {}).get("curriculum") for r in rs]
+        if walks and all(w is not None for w in walks):
+            rows[-1]["curriculum"] = sum_walks(walks)
     return rows
+
+
+def sum_walks(walks: list[dict]) -> dict:
+    """The curriculum walks (:meth:`sim2real.eval.soak.curriculum_walk.CurriculumWalk.summary`)
+    of a row's sessions summed: counts and each level's seconds and episodes added,
+    ``first_level`` and ``level`` as lists over the sessions."""
+    out = {"episode_length_s": walks[0]["episode_length_s"], "rule": walks[0]["rule"]}
+    for key in ("episodes_ended", "moved_up", "moved_down", "stayed"):
+        out[key] = sum(w[key] for w in walks)
+    out["ended_by"] = {k: sum(w["ended_by"][k] for w in walks) for k in walks[0]["ended_by"]}
+    out["first_level"] = [w["first_level"] for w in walks]
+    out["level"] = [w["level"] for w in walks]
+    levels: dict[str, dict] = {}
+    for w in walks:
+        for k, v in w["levels"].items():
+            at = levels.setdefault(k, {"s": 0.0, "episodes": 0})
+            at["s"] += v["s"]
+            at["episodes"] += v["episodes"]
+    out["levels"] = dict(sorted(levels.items(), key=lambda kv: int(kv[0])))
+    return out
+
+
+def walk_text(walk: dict) -> str:
+    """One line of a curriculum walk (a session's or :func:`sum_walks`'): its episodes, how they
+    ended, the moves, the levels first and last, and the seconds walked on each level's tiles."""
+    by = walk["ended_by"]
+    levels = ", ".join(f"@{k} {v['s']:.0f} s" for k, v in walk["levels"].items())
+
+    def listed(x) -> str:
+        return ",".join(str(v) for v in x) if isinstance(x, list) else str(x)
+
+    return (
+        f"curriculum walk: {walk['episodes_ended']} episodes ended ({by['timeout']} timeouts of "
+        f"{walk['episode_length_s']:g} s, {by['stop']} stops): up {walk['moved_up']}, down "
+        f"{walk['moved_down']}, stayed {walk['stayed']}; level {listed(walk['first_level'])} -> "
+        f"{listed(walk['level'])}; walking on level {levels or 'none'}"
+    )
 
 
 def _on_terrain(results: list[dict]) -> dict:
@@ -100,6 +140,8 @@ def terrain_lines(rows: list[dict] | None) -> list[str]:
         )
         if row.get("falls_on") is not None:
             out.append(f"    {'':<22} {did_line(row)}")
+        if row.get("curriculum") is not None:
+            out.append(f"    {'':<22} {walk_text(row['curriculum'])}")
     return out
 
 

@@ -45,6 +45,7 @@ from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.batch_tick import BatchTick
+from sim2real.eval.soak.curriculum_walk import CurriculumWalk
 from sim2real.eval.soak.exhibition import exhibition_task
 from sim2real.eval.soak.faults import SessionFaults
 from sim2real.eval.soak.push_response import PushResponse
@@ -198,6 +199,13 @@ class SessionBatch:
         #: a legged robot's base estimate against the plant's truth (None for an arm)
         self.estimation = self.rig.estimation
         self.terrain_figures = TerrainFigures.of_batch(draws, self.task, dt)  # None: no terrain
+        #: a curriculum walk on terrain (None: none); a replay's copy keeps its episodes' state
+        #: but respawns no timed-out robot (a respawn would end the replay's own loop early)
+        self.curriculum = CurriculumWalk.of_batch(
+            draws, self.terrain_figures, getattr(backend, "grounds", None), dt,
+            [session_rng(c.seed, "curriculum_walk") for c in configs],
+        )  # fmt: skip
+        self.curriculum_respawns = replay_stops
 
         n = robot.n_joints
         self.peak = backend.thermal.winding_temperature.copy()
@@ -393,20 +401,32 @@ class SessionBatch:
         for recorder in self.recorders:
             recorder.supervise(rt)
 
-    def stand_up(self, envs: np.ndarray) -> None:
+    def stand_up(self, envs: np.ndarray, end: str = "stop") -> None:
         """A legged operator's reset, first part: put the robots of ``envs`` (bool mask) back on
         their feet, at rest at home at the start of the floor (``SimBackend.reset`` of those
         envs: the MJCF's standing pose), their motors as warm as they were, and restart them
         there (``Runtime.restart``: the estimators anchored at rest where the encoders read the
         joints, as an operator's restart on hardware can only be, the session's estimator counts
         kept, RAMP_IN). Anchored at the nominal home instead, a robot whose encoders read it with
-        an offset (``[sensors] encoder_bias``) fell 3.3 s after every stand-up."""
+        an offset (``[sensors] encoder_bias``) fell 3.3 s after every stand-up.
+
+        On a curriculum walk (:mod:`sim2real.eval.soak.curriculum_walk`) the episode ends there
+        (``end``: ``"stop"``, an operator's reset after a stop, or ``"timeout"``): its level moves by
+        legged_gym's rule, the robot is put on its new level's tile instead of the start, and
+        its command schedule draws a new command at once (legged_gym's ``reset_idx``)."""
         b = self.backend
+        walk = self.curriculum
+        offsets = None
+        if walk is not None:
+            offsets = walk.end_episodes(envs, b, self.rt.velocity_command, end)
         th = b.thermal
         winding = th.winding_temperature[envs].copy()
         housing = th.housing_temperature[envs].copy()
         reading = b.frame.winding_temperature[envs].copy()
-        b.reset(envs=envs)
+        if offsets is None:
+            b.reset(envs=envs)
+        else:
+            b.reset(envs=envs, base_offset=offsets)
         th.winding_temperature[envs] = winding
         th.housing_temperature[envs] = housing
         b.frame.winding_temperature[envs] = reading
@@ -416,6 +436,11 @@ class SessionBatch:
         anchor = np.broadcast_to(self.robot.home, read.shape).copy()
         anchor[envs] = np.where(np.isfinite(read[envs]), read[envs], anchor[envs])
         self.rt.restart(envs, anchor, b.frame.time)
+        if self.terrain_figures is not None:  # put down by hand: anchored there, no crossing
+            self.terrain_figures.carried(envs, b)
+        schedule = getattr(self.task, "schedule", None)
+        if walk is not None and schedule is not None:
+            schedule.resample(envs)
 
     def _progress(self, done: bool = False) -> None:
         if not self.write_progress:

@@ -25,4 +25,8 @@ class BatchTick(RunHook):
         b = self.batch
         if b.terrain_figures is not None:  # before a stand-up moves the base, a capture holds it
             b.terrain_figures.tick(runtime, b.backend, b.task.tracker.falls)
+        if b.curriculum is not None:  # a curriculum walk's timeouts: respawned on their level
+            due = b.curriculum.tick(runtime, b.backend)
+            if b.curriculum_respawns and due.any():  # a replay's copy respawns none
+                b.stand_up(due, end="timeout")
         b.bookkeeping(runtime)

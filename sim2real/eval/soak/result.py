@@ -77,6 +77,8 @@ def locomotion_result(session: Session) -> dict:
     pushes = b.pushes.times[e] if b.pushes is not None else []
     fall_records = attribute_falls(tr.fall_log[e], schedule, pushes)
     figures = b.terrain_figures.summary(e) if b.terrain_figures is not None else None
+    if figures is not None and b.curriculum is not None:  # sim2real.eval.soak.curriculum_walk
+        figures["curriculum"] = b.curriculum.summary(e)
     if figures is not None:  # each fall's tile and part, counted at the same stop
         for record, place in zip(fall_records, figures["fall_places"], strict=True):
             record["where"] = {"tile": place["tile"], "part": place["part"]}

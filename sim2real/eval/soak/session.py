@@ -375,6 +375,8 @@ class Session:
             parts["estimation"] = b.estimation
         if b.terrain_figures is not None:
             parts["terrain"] = b.terrain_figures
+        if b.curriculum is not None:
+            parts["curriculum"] = b.curriculum
         state.update(parts_state_dict(parts, e))
         if self.fault_armed:
             state.update(prefixed("injector", b.faults.armed[e].state_dict()))
@@ -461,6 +463,8 @@ class Session:
             ckpt.load_stage(b.estimation, arrays, e, where, "estimation")
         if b.terrain_figures is not None:
             ckpt.load_stage(b.terrain_figures, arrays, e, where, "terrain")
+        if b.curriculum is not None:
+            ckpt.load_stage(b.curriculum, arrays, e, where, "curriculum")
         s = meta["session"]
         self.fault_index = int(s["fault_index"])
         self.fault_armed = bool(s["fault_armed"])

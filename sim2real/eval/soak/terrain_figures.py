@@ -14,7 +14,9 @@ central ``platform``, the ``feature`` around it, or ``off`` the tiles) and accou
   come onto the tile from its rim, the base reaches its platform, walking. Going onto the feature
   and back to the same platform, or back out over the same rim, crosses nothing. While not
   RUNNING (a fall, an operator's stand-up that puts the robot back at the start) the base's place
-  is followed but no crossing is counted. On ``stairs_down`` a crossing out goes down the steps,
+  is followed but no crossing is counted, and where an operator puts a robot down (a stand-up, a
+  curriculum walk's respawn: :meth:`TerrainFigures.carried`) it is anchored anew. On
+  ``stairs_down`` a crossing out goes down the steps,
   one in goes up them (``stairs_up`` and ``slope_up`` the other way round);
 - falls where they happened: each of the tracker's falls (:class:`sim2real.deploy.tasks.locomotion.
   CommandTracker` ``falls``, counted at the stop) placed on the part under the base at that tick
@@ -58,15 +60,10 @@ class TerrainFigures:
         self.layouts, self.dt = list(layouts), float(control_period)
         k = self.envs = len(layouts)
         first = layouts[0]
-        for x in layouts[1:]:
-            if (x.origin, x.spacing, x.n, x.tiles) != (
-                first.origin,
-                first.spacing,
-                first.n,
-                first.tiles,
-            ):
-                raise ValueError("TerrainFigures: the envs' tiles must share one grid (one ranges)")
+        if any(x.grid != first.grid for x in layouts[1:]):
+            raise ValueError("TerrainFigures: the envs' tiles must share one grid (one ranges)")
         self._platform = np.stack([x.platform for x in layouts])  # (envs, n, n)
+        self._origins = np.array([x.origin for x in layouts], dtype=np.float64)  # (envs, 2)
         self._sums = np.zeros((k, 4))  # s on the platform, the feature, off; m on the feature
         self.platform_s, self.feature_s = self._sums[:, 0], self._sums[:, 1]
         self.off_s, self.feature_m = self._sums[:, 2], self._sums[:, 3]
@@ -100,11 +97,22 @@ class TerrainFigures:
     def locate(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(tile, on_platform)`` (envs,) of the envs' points ``xy`` (envs, 2) m, each on its
         own env's tiles (:func:`sim2real.eval.world.tile_parts.place`; the kernel's rule)."""
-        return place(xy, self.layouts[0], self._platform, np.arange(self.envs))
+        return place(xy, self.layouts[0], self._platform, np.arange(self.envs), self._origins)
+
+    def carried(self, envs: np.ndarray, backend) -> None:
+        """The bases of ``envs`` (bool (envs,)) were put down by hand where ``backend``'s truth
+        has them now (an operator's stand-up; a curriculum walk's respawn on another tile):
+        anchored there, on the tile and part under them, so that the move crosses nothing (a
+        restarted robot at rest may be RUNNING again at its next tick, before the figures see
+        it moved)."""
+        xy = backend.true_base_state(self._truth)[:, :2]
+        tile, on = self.locate(xy)
+        self.anchor_tile[envs] = tile[envs]
+        self.anchor_platform[envs] = on[envs]
 
     def _arguments(self) -> tuple:
         first = self.layouts[0]
-        grid = (first.origin, first.spacing, first.n, first.tiles, self.dt)
+        grid = (self._origins, first.spacing, first.n, first.rows, first.cols, self.dt)
         state = (self._sums, self.crossings, self.falls_on, self.falls_seen, self.anchor_tile)
         return (self._platform, *grid, *state, self.anchor_platform, self._fell_tile)
 

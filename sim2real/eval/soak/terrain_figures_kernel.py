@@ -16,27 +16,28 @@ import numpy as np
 
 @numba.njit(cache=True, nogil=True)
 def account(
-    truth, running, falls, platform, origin, spacing, n, tiles, dt, sums, crossings,
+    truth, running, falls, platform, origins, spacing, n, rows, cols, dt, sums, crossings,
     falls_on, falls_seen, anchor_tile, anchor_platform, fell_tile, fell_part,
 ):  # fmt: skip
     """One tick (module docstring). ``truth`` (envs, >= 9): the true base's world x, y (m) at
     columns 0, 1 and its world planar velocity (m/s) at 7, 8; ``running`` (envs,) bool;
-    ``falls`` (envs,) int64 the tracker's counts; ``platform`` (envs, n, n) bool; ``sums``
+    ``falls`` (envs,) int64 the tracker's counts; ``platform`` (envs, n, n) bool; ``origins``
+    (envs, 2) m, each env's first tile's first sample; ``rows x cols`` tiles; ``sums``
     (envs, 4): s on the platform, the feature, off the tiles, and m on the feature;
     ``crossings`` (envs, 2) int64 out, in; ``falls_on`` (envs, 3) int64 by part;
     ``falls_seen``, ``anchor_tile`` (envs,) int64; ``anchor_platform`` (envs,) bool; ``fell_tile``,
     ``fell_part`` (envs,) int64 written for the envs that fell this tick (``fell_part`` -1 for
     the others). Returns whether any env fell."""
-    side = tiles * n
+    side0, side1 = rows * n, cols * n
     any_fell = False
     for e in range(truth.shape[0]):
-        u0 = int(np.rint((truth[e, 0] - origin) / spacing))
-        u1 = int(np.rint((truth[e, 1] - origin) / spacing))
+        u0 = int(np.rint((truth[e, 0] - origins[e, 0]) / spacing))
+        u1 = int(np.rint((truth[e, 1] - origins[e, 1]) / spacing))
         tile = -1
         on = False
-        if 0 <= u0 < side and 0 <= u1 < side:
+        if 0 <= u0 < side0 and 0 <= u1 < side1:
             t0, t1 = u0 // n, u1 // n
-            tile = t0 * tiles + t1
+            tile = t0 * cols + t1
             on = platform[e, u0 - t0 * n, u1 - t1 * n]
         part = 2 if tile < 0 else (0 if on else 1)
         walking = running[e]

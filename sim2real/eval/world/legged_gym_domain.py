@@ -26,6 +26,7 @@ from pathlib import Path
 from sim2real.eval.world.legged_gym_groups import GROUPS, Context
 from sim2real.eval.world.legged_gym_lines import domain_lines, terrain_table
 from sim2real.eval.world.legged_gym_tree import Setting, TreeError, resolve_config
+from sim2real.eval.world.manager_config import refuse_manager_config
 from sim2real.robots.errors import Sim2RealError
 
 
@@ -62,10 +63,15 @@ def read_legged_gym_config(path: str | Path, config_class: str | None = None) ->
             else the first that derives from a name ending in ``Cfg``).
 
     Raises:
-        DomainError: an unreadable file, not Python, no such config class, or a base the tree
-            does not hold (one line naming the class and the module).
+        DomainError: an unreadable file, not Python, no such config class, a base the tree
+            does not hold (one line naming the class and the module), or an Isaac Lab or mjlab
+            config in Python (:func:`~sim2real.eval.world.manager_config.refuse_manager_config`:
+            one line naming the file, the class and the run folder's ``params/env.yaml``).
     """
     path = Path(path)
+    refusal = refuse_manager_config(path, config_class)
+    if refusal is not None:  # Isaac Lab's or mjlab's Python: not readable as legged_gym's
+        raise DomainError(refusal)
     try:
         resolved = resolve_config(path, config_class)
     except TreeError as exc:
@@ -86,18 +92,19 @@ def read_legged_gym_config(path: str | Path, config_class: str | None = None) ->
         "terrain": terrain,
         "commands": resolved.section("commands"),
         "control": resolved.section("control"),
+        "env": {k: v for k, v in resolved.section("env").items() if isinstance(v, Setting)},
         "source": f"{resolved.file} ({resolved.name}, legged_gym)",
         "classes": resolved.classes,
         "env_files": env_files,  # the task's own folder first, then its bases' in order
     }
 
 
-def _terrain_refusals(terrain: dict) -> list[str]:
+def _terrain_refusals(terrain: dict, env: dict) -> list[str]:
     """Why the soak cannot build legged_gym's ``terrain`` class (its kinds past the fifth share,
     a mesh type it does not know; named), or nothing."""
     from sim2real.eval.world.terrain import TerrainRanges
 
-    table = terrain_table(terrain)
+    table = terrain_table(terrain, env)
     if table is None:
         return []
     try:
@@ -151,7 +158,7 @@ def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
                 group.read(context)
             except ValueError as exc:
                 refused.append(str(exc))
-    refused += _terrain_refusals(cfg["terrain"])
+    refused += _terrain_refusals(cfg["terrain"], cfg["env"])
     if not refused:
         try:
             text = "\n".join(domain_lines(context, math.sqrt(3.0))) + "\n"

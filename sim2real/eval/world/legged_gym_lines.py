@@ -29,6 +29,10 @@ TERRAIN_KEYS = ("mesh_type", "terrain_proportions", "num_rows", "num_cols", "cur
 #: choice, 5 x 5 tiles of 8 m (40 m), past what a command of HIMLoco's (10 s, up to 2 m/s)
 #: walks from the centre; legged_gym's own robots walk on a grid of ``num_rows x num_cols``.
 GRID_TILES = 5
+#: legged_gym's ``env.episode_length_s`` where the config sets none (``LeggedRobotCfg.env``,
+#: legged_gym/envs/base/legged_robot_config.py: ``episode_length_s = 20 # episode length in
+#: seconds``; HIMLoco's the same).
+EPISODE_LENGTH_S = 20.0
 #: Why the other ``terrain`` keys are not modelled.
 TERRAIN_APART = {
     "dynamic_friction": "MuJoCo's contact has one sliding friction: the static one is drawn",
@@ -303,10 +307,13 @@ def command_lines(c: Context) -> list[str]:
     return out
 
 
-def terrain_table(terrain: dict) -> dict | None:
+def terrain_table(terrain: dict, env: dict | None = None) -> dict | None:
     """The ``[terrain]`` table (``{key: value}``) of legged_gym's ``terrain`` class ``terrain``
     (``{key: Setting}``), every level drawn; None for a flat one (``plane``, ``none``): the
-    soak's plane."""
+    soak's plane. With its ``curriculum`` on (legged_gym's default) the sessions walk it as the
+    curriculum does (``walk = "curriculum"``: :mod:`sim2real.eval.soak.curriculum_walk`), in
+    episodes of the ``env`` class's ``episode_length_s`` (``{key: Setting}``; else
+    :data:`EPISODE_LENGTH_S`)."""
     mesh = terrain.get("mesh_type")
     if mesh is None or mesh.value in ("plane", "none"):
         return None
@@ -314,6 +321,10 @@ def terrain_table(terrain: dict) -> dict | None:
     rows = terrain.get("num_rows")
     out["levels"] = [0, int(rows.value if rows is not None else 10) - 1]
     out["tiles"] = GRID_TILES
+    if out.get("curriculum", True) is True:
+        out["walk"] = "curriculum"
+        length = (env or {}).get("episode_length_s")
+        out["episode_length_s"] = float(length.value) if length is not None else EPISODE_LENGTH_S
     return out
 
 
@@ -321,7 +332,8 @@ def terrain_lines(c: Context) -> list[str]:
     """:func:`terrain_table` as TOML lines (none for a flat terrain), each key's source in
     ``c.prov``, the rest of the class in ``c.apart``."""
     terrain = c.cfg["terrain"]
-    table = terrain_table(terrain)
+    env = c.cfg.get("env") or {}
+    table = terrain_table(terrain, env)
     friction = {"static_friction"}
     if table is None:
         mesh = terrain.get("mesh_type")
@@ -334,7 +346,35 @@ def terrain_lines(c: Context) -> list[str]:
     lines = ["", "[terrain]"]
     for key, value in table.items():
         lines.append(f"{key} = {_fmt(value)}")
-        if key == "tiles":
+        if key == "tiles" and table.get("walk") == "curriculum":
+            c.prov.append(
+                f"terrain.tiles = {value} <- the soak's: each session walks its kind's column "
+                f"of legged_gym's map, one tile per level along x (num_rows), {value} tiles "
+                "of its kind along y (legged_gym's neighbouring columns hold other kinds)"
+            )
+        elif key == "walk":
+            on = terrain.get("curriculum")
+            src = (
+                _src(on)
+                if on is not None
+                else "legged_gym's curriculum = True (documented default)"
+            )
+            c.prov.append(
+                f'terrain.walk = "curriculum" <- {src}: the robot spawns at its level\'s tile '
+                "centre, each episode's end moves its level by legged_gym's "
+                "_update_terrain_curriculum (legged_robot.py) and respawns it there"
+            )
+        elif key == "episode_length_s":
+            length = env.get("episode_length_s")
+            src = (
+                _src(length)
+                if length is not None
+                else (
+                    f"legged_gym's env.episode_length_s {EPISODE_LENGTH_S:g} (documented default)"
+                )
+            )
+            c.prov.append(f"terrain.episode_length_s = {value:g} <- {src}")
+        elif key == "tiles":
             c.prov.append(
                 f"terrain.tiles = {value} <- the soak's: legged_gym's robot walks on a grid of "
                 "num_rows x num_cols tiles, off its own onto its neighbours; ours on a "

@@ -51,6 +51,7 @@ STREAMS = {
     "com_offset": 10,  # a body's centre-of-mass shift (ComOffsetRanges)
     "terrain": 11,  # floating-base robots: the ground's tile kind and level (TerrainRanges)
     "terrain_tiles": 12,  # the random parts of its tiles (roughness, obstacles)
+    "curriculum_walk": 13,  # a curriculum walk's respawns (sim2real.eval.soak.curriculum_walk)
 }
 
 

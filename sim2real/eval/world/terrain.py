@@ -27,6 +27,12 @@ import numpy as np
 
 from sim2real.eval.world.floor import BORDER_PREFIX
 from sim2real.eval.world.terrain_choice import cumulative_proportions, kind_shares, legged_gym_kind
+from sim2real.eval.world.terrain_layout import (  # noqa: F401 - tile_grid is this module's too
+    start_tile,
+    tile_counts,
+    tile_difficulty,
+    tile_grid,
+)
 from sim2real.eval.world.terrain_tiles import (
     KINDS,
     UNBUILT_KINDS,
@@ -53,6 +59,8 @@ FLOOR_SETTINGS += ("solimp", "solmix", "margin", "gap", "material", "rgba", "gro
 #: Half side of the square about the start whose highest point the robot is put on, m (ours: a
 #: Go2's feet stand within 0.25 m of its base).
 SPAWN_HALF_SIDE = 0.3
+#: How a session's robot walks its tiles (:attr:`TerrainRanges.walk`).
+WALKS = ("grid", "curriculum")
 #: legged_gym's difficulties without a curriculum (``Terrain.randomized_terrain``).
 RANDOM_DIFFICULTIES = (0.5, 0.75, 0.9)
 
@@ -84,7 +92,18 @@ class TerrainRanges:
             200 tiles).
         slope_treshold: Gradient above which a trimesh face is made vertical (legged_gym's
             spelling).
-        tiles: The session's grid is ``tiles x tiles`` tiles (odd; ours).
+        tiles: The session's grid is ``tiles x tiles`` tiles (odd; ours); with ``walk =
+            "curriculum"`` the columns of its strip.
+        walk: ``"grid"`` (default): the session's tiles are all of its drawn kind and level, the
+            robot starts on the middle one and is stood up there after a fall. ``"curriculum"``:
+            the session's ground is legged_gym's column of its kind, one tile per level along x
+            (``num_rows`` rows, difficulty ``i / num_rows``; legged_gym's rows, ``Terrain.
+            curiculum``), ``tiles`` wide; the robot starts at the centre of its level's tile, and
+            each episode (``episode_length_s`` of walking, or a fall) ends with legged_gym's
+            curriculum rule moving its level and a respawn on that level's tile
+            (:mod:`sim2real.eval.soak.curriculum_walk`). Needs ``curriculum``.
+        episode_length_s: s, legged_gym's ``env.episode_length_s`` (20 in ``legged_robot_config.
+            py``): a curriculum walk's episode (its timeout, and the distance its rule asks for).
 
     Raises:
         ValueError: a mesh type, proportion, level or size out of its bounds (named).
@@ -103,6 +122,8 @@ class TerrainRanges:
     border_size: float = 1.0
     slope_treshold: float = 0.75
     tiles: int = 1
+    walk: str = "grid"
+    episode_length_s: float = 20.0
 
     def __post_init__(self):
         if self.mesh_type not in MESH_TYPES + FLAT_MESH_TYPES:
@@ -149,6 +170,16 @@ class TerrainRanges:
                 f"{self.tiles}, {self.border_size}"
             )
 
+        if self.walk not in WALKS or (self.walk == "curriculum" and not self.curriculum):
+            raise ValueError(
+                f"TerrainRanges.walk: expected one of {list(WALKS)} ('curriculum' with "
+                f"curriculum = true), got {self.walk!r} (curriculum {self.curriculum})"
+            )
+        if not (math.isfinite(self.episode_length_s) and self.episode_length_s > 0):
+            raise ValueError(
+                f"TerrainRanges.episode_length_s: expected s > 0, got {self.episode_length_s}"
+            )
+
     @property
     def flat(self) -> bool:
         return self.mesh_type in FLAT_MESH_TYPES
@@ -159,9 +190,16 @@ class TerrainRanges:
         shares = ", ".join(f"{k} {100 * x:.3g} %" for k, x in self.kind_shares.items())
         low, high = self.levels or (0, self.num_rows - 1)
         choice = f"{self.num_cols} curriculum columns" if self.curriculum else "a uniform choice"
+        walk = (
+            f"; curriculum walk: each session on its kind's column of {self.num_rows} levels, "
+            f"episodes of {self.episode_length_s:g} s, levels moved by legged_gym's rule"
+            if self.walk == "curriculum"
+            else ""
+        )
         return (
             f"{self.mesh_type} tiles, {shares} of the sessions (legged_gym's cumulative rule on "
-            f"{list(self.terrain_proportions)}, {choice}); levels {low}-{high} of {self.num_rows}"
+            f"{list(self.terrain_proportions)}, {choice}); levels {low}-{high} of "
+            f"{self.num_rows}{walk}"
         )
 
     @property
@@ -280,30 +318,25 @@ class GroundMap:
         return np.where(inside, z, 0.0)
 
 
-def tile_grid(ranges: TerrainRanges) -> tuple[int, int, int]:
-    """``(n, border, start)`` in samples of ``horizontal_scale``: a tile's side (legged_gym's
-    ``int(terrain_width / horizontal_scale)``), the flat border's width, and the start's index
-    (the middle tile's centre) along either axis of the session's :class:`GroundMap`."""
-    n = int(ranges.terrain_width / ranges.horizontal_scale)
-    border = int(ranges.border_size / ranges.horizontal_scale)
-    return n, border, border + (ranges.tiles // 2) * n + n // 2
-
-
 def ground_map(draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:
     """The session's :class:`GroundMap` of ``draw`` (module docstring), random parts from
     ``rng``."""
     r = draw.ranges
     hs, vs = r.horizontal_scale, r.vertical_scale
-    n, border, start = tile_grid(r)
-    units = np.zeros((2 * border + r.tiles * n,) * 2, dtype=np.int16)
-    for i in range(r.tiles):
-        for j in range(r.tiles):
-            tile = make_tile(draw.kind, draw.difficulty, n, hs, vs, rng)
+    n, border, _ = tile_grid(r)
+    rows, cols = tile_counts(r)
+    units = np.zeros((2 * border + rows * n, 2 * border + cols * n), dtype=np.int16)
+    for i in range(rows):
+        d = tile_difficulty(draw, i)
+        for j in range(cols):
+            tile = make_tile(draw.kind, d, n, hs, vs, rng)
             units[border + i * n : border + (i + 1) * n, border + j * n : border + (j + 1) * n] = (
                 tile
             )
     stepped = r.mesh_type == "trimesh" and draw.kind in STEPPED_KINDS
-    return GroundMap(units * vs, -start * hs, -start * hs, hs, stepped)
+    i0, j0 = start_tile(draw)
+    sx, sy = border + i0 * n + n // 2, border + j0 * n + n // 2
+    return GroundMap(units * vs, -sx * hs, -sy * hs, hs, stepped)
 
 
 def _free_body(spec: mujoco.MjSpec):
@@ -407,12 +440,13 @@ def add_ground(spec: mujoco.MjSpec, ground: GroundMap) -> None:
     body.pos = np.asarray(body.pos) + [0.0, 0.0, spawn_height(ground)]
 
 
-def spawn_height(ground: GroundMap) -> float:
-    """m, the ground's highest point within ``SPAWN_HALF_SIDE`` of the start (legged_gym's
-    ``env_origin_z``: the highest within 1 m of its tile's centre): the feet of a robot put
-    there at its standing height are on the ground or above it, never in it."""
+def spawn_height(ground: GroundMap, x: float = 0.0, y: float = 0.0) -> float:
+    """m, the ground's highest point within ``SPAWN_HALF_SIDE`` of world ``(x, y)`` m (default
+    the start; legged_gym's ``env_origin_z``: the highest within 1 m of its tile's centre): the
+    feet of a robot put there at its standing height are on the ground or above it, never in
+    it."""
     h, s = ground.heights, ground.spacing
-    i0, j0 = round(-ground.x0 / s), round(-ground.y0 / s)
+    i0, j0 = round((x - ground.x0) / s), round((y - ground.y0) / s)
     k = int(math.ceil(SPAWN_HALF_SIDE / s))
     return float(h[max(i0 - k, 0) : i0 + k + 1, max(j0 - k, 0) : j0 + k + 1].max())
 
@@ -435,7 +469,8 @@ def parse_terrain(text: str, ranges: TerrainRanges | None = None) -> TerrainDraw
         ValueError: an unknown kind (named, with those the soak builds), a malformed size or
             level, or one outside difficulties [0, 1).
     """
-    ranges = TerrainRanges() if ranges is None else ranges
+    # one stated tile: the grid of it (a curriculum walk's column is a soak session's)
+    ranges = TerrainRanges() if ranges is None else dataclasses.replace(ranges, walk="grid")
     kind, sep, rest = text.replace("@", ":@", 1).partition(":")
     if kind not in KINDS:
         raise ValueError(

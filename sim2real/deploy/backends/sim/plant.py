@@ -199,8 +199,17 @@ class SimBackend(BackendLifecycle):
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
-    def reset(self, q: np.ndarray | None = None, envs: np.ndarray | None = None) -> None:
+    def reset(
+        self,
+        q: np.ndarray | None = None,
+        envs: np.ndarray | None = None,
+        base_offset: np.ndarray | None = None,
+    ) -> None:
         """Put envs at rest at ``q`` (rad, (n,) or (envs, n); default the home pose).
+
+        ``base_offset`` ((envs, 3) m, world; a free-floating base only): each reset env's base
+        is put that far from its MJCF pose (a robot carried to another spot of its ground: a
+        curriculum walk's respawn, :mod:`sim2real.eval.soak.curriculum_walk`).
 
         With ``envs`` None every env is reset: the clock returns to 0, the motors cool to ambient
         and the sensor buffers are cleared. With a boolean mask ``envs`` (shape (envs,)) only those
@@ -218,6 +227,8 @@ class SimBackend(BackendLifecycle):
             m, d = self.models[e], self.datas[e]
             mujoco.mj_resetData(m, d)  # a floating base: at its MJCF pose (standing)
             d.qpos[self._qpos_offset :] = q0[e]
+            if base_offset is not None:
+                d.qpos[:3] += base_offset[e]
             if m.na:  # integrating velocity servos start their setpoint at the pose
                 d.act[:] = q0[e]
             mujoco.mj_forward(m, d)

@@ -14,6 +14,9 @@ end is :mod:`sim2real.deploy.cli.run_summary`'s.
       that does not come up (port, missing servo, wrong model number, calibration); a Unitree
       robot that does not come up (no LowState, a high-level mode active, a ramp not followed)
 4     the simulation diverged (MuJoCo reported a bad state)
+5     a clip run whose base left its spot: it ends more than 0.5 m from where the clip's root
+      path ends, or went more than 0.5 m after the clip
+      (:mod:`sim2real.deploy.tasks.motion.travel`)
 ====  =====================================================================================
 
 Backends (``--backend``): ``sim`` (the MuJoCo plant, simulated or wall clock, many envs, fault
@@ -56,6 +59,7 @@ from sim2real.deploy.spec.drive import drive_robot
 from sim2real.robots.files import atomic_write
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
+EXIT_LEFT_SPOT = 5
 
 
 def run(args) -> int:
@@ -87,10 +91,16 @@ def run(args) -> int:
     faults = [Fault.parse(s) for s in args.inject]
     fixed = _fixed_goal(args.goal)
     check_options(args, robot)  # --command, --size, --fps: read once the rig is built
+    after = after_clip_policy(args, policies, policy)  # (name, policy) or None
+    playback = args.motion_playback or ("once" if after else "stand")
     motion = motion_for(
-        policy, robot, args.envs, args.motion, args.motion_playback, args.motion_fps,
-        args.motion_stand_s,
+        policy, robot, args.envs, args.motion, playback, args.motion_fps, args.motion_stand_s,
     )  # fmt: skip  # a tracking policy's clip (ClipError: a ValueError, exit 3)
+    if after is not None and motion is None:
+        raise ValueError(
+            f"--after-clip {after[0]}: the first --policy plays no clip (a motion-tracking "
+            "policy's observation reads one)"
+        )
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
@@ -110,7 +120,7 @@ def run(args) -> int:
         clock = SimClock(robot.control_period)
     # the rig (its compiled stages, warmed) before the bring-up (in _run_rig): a robot brought
     # up holds at home, and what plays on its clock (a scripted remote) waits on no compile
-    rig = build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion)
+    rig = build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion, after)
     try:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
@@ -208,7 +218,44 @@ def realtime_options(args, realtime: bool):
     return wait, request
 
 
-def build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion=None):
+def after_clip_policy(args, policies: dict, first) -> tuple[str, object] | None:
+    """The policy a clip run hands the robot to at the clip's end (``--after-clip NAME``;
+    without it, the run's second ``--policy`` when there is no ``--operator``), as ``(name,
+    policy)``; None: the clip's end is a hold (``--motion-playback``), judged.
+
+    Raises:
+        ValueError: a name no ``--policy`` gives, the first policy named, ``--envs`` other than
+            1, ``--motion-playback`` given too, a negative ``--after-clip-blend``.
+    """
+    name = args.after_clip
+    if name is None:
+        from sim2real.deploy.tasks.motion.source import reads_motion
+
+        if getattr(args, "operator", None) or len(policies) < 2 or not reads_motion(first.spec):
+            return None
+        name = list(policies)[1]
+    if name not in policies or policies[name] is first:
+        raise ValueError(
+            f"--after-clip {name}: expected the NAME of a --policy NAME=FILE after the first "
+            f"(the run's: {list(policies)})"
+        )
+    if args.envs != 1:
+        raise ValueError(
+            f"--after-clip {name}: a hand-over drives one robot: --envs must be 1, got {args.envs}"
+        )
+    if args.motion_playback is not None:
+        raise ValueError(
+            f"--motion-playback {args.motion_playback} and a hand-over to '{name}' at the "
+            "clip's end: give one of them"
+        )
+    if not args.after_clip_blend >= 0.0:
+        raise ValueError(f"--after-clip-blend {args.after_clip_blend}: expected s >= 0")
+    return name, policies[name]
+
+
+def build_rig(
+    args, robot, policies, backend, injector, clock, fixed, mapping, motion=None, after=None
+):
     """The run's :class:`~sim2real.deploy.rig.rig.Rig` on the first of ``policies``: the runtime
     (telemetry, overrun limit), the task of the options, the motion figures, the hooks the
     options switch on, the operator (``--operator``'s ``mapping``, after them) and, on hardware
@@ -244,6 +291,10 @@ def build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, m
             task.update(task="tracking", motion=motion, motion_start_after=args.motion_start_after)
         rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
         rig.add(MotionHook(rig))
+        if after is not None:  # the hand-over at the clip's end
+            from sim2real.deploy.rig.after_clip import AfterClipHook
+
+            rig.add(AfterClipHook(rig, after[1], after[0], args.after_clip_blend))
         for entry in registered_hooks().values():  # --ros2, --print-joints, --video, ...
             hook = entry.build(args, rig)
             if hook is not None:
@@ -420,6 +471,8 @@ def exit_code(report: dict, rig) -> int:
     ]
     if any(stopped) or rig.true_falls():
         return EXIT_FAULT
+    if ((report.get("tracking") or {}).get("travel") or {}).get("off_path"):
+        return EXIT_LEFT_SPOT  # a dance that left its spot: a finding, never a success
     return EXIT_CLEAN
 
 

@@ -48,11 +48,12 @@ def _print_task(r: dict) -> None:
             f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s "
             f"({rate})"
         )
-    if loco is not None:
+    clip = r.get("tracking") is not None  # a clip commands the policy: no velocity lines
+    if loco is not None and not clip:
         _print_walk(loco)
-    if loco is not None and loco.get("heading_change_deg") is not None:
+    if loco is not None and not clip and loco.get("heading_change_deg") is not None:
         _print_heading(loco)
-    if r.get("tracking") is not None:
+    if clip:
         v = r.get("violations") or {}
         excused = {"ticks": v.get("reference_contact_ticks", 0)}
         _print_tracking(r["tracking"], loco, excused)
@@ -96,6 +97,77 @@ def _print_tracking(t: dict, loco: dict | None, excused: dict | None = None) -> 
     _print_reference_contacts(t.get("reference_contacts"), excused)
     if loco is not None:
         print(f"  falls             {loco['falls']}")
+    _print_after_clip(t)
+
+
+#: What each way of ending a clip is, as its stack does it (the summary's words).
+FOLLOWS = {
+    "handover": "handed over to '{policy}' at the clip's end{at}{blend} (rl_sar's fsm hands "
+    "its dance to its locomotion policy)",
+    "stand": "a hold judged: to home over {stand_s:g} s, then home (holosoma's default pose "
+    "append)",
+    "once": "a hold judged: its last frame (BeyondMimic's controller holds it)",
+    "hold": "a hold judged: its last frame (BeyondMimic's controller holds it)",
+    "loop": "the clip again (a loop)",
+    "exhibition": "to home, a rest at home, the clip again (an exhibition)",
+}
+
+
+def after_clip_text(t: dict) -> str:
+    """What followed the clip, in the summary's words (:data:`FOLLOWS`)."""
+    after = t.get("after_clip") or {"follows": t["playback"]}
+    blend = after.get("blend_s") or 0.0
+    return FOLLOWS.get(after["follows"], after["follows"]).format(
+        policy=after.get("policy"),
+        blend=f", blended over {blend:g} s" if blend else ", at once",
+        at=f" ({after['at_s']:.2f} s)" if after.get("at_s") is not None else " (not reached)",
+        stand_s=t.get("stand_s") or 0.0,
+    )
+
+
+def _print_after_clip(t: dict) -> None:
+    """Print what followed the clip, the base's travel against the clip's root path (the
+    env farthest from it) and the finding of a base that left its spot."""
+    travel = t.get("travel")
+    figures = [f for f in (travel or {}).get("envs", []) if f is not None]
+    print(f"  after the clip    {after_clip_text(t)}")
+    if not figures:
+        return
+    e, f = max(enumerate(figures), key=lambda ef: ef[1]["end_offset_m"])
+    env = f" (env {e}, the farthest)" if len(figures) > 1 else ""
+    print(
+        f"  base travel       during the clip {f['base_travel_m']:.2f} m, turned "
+        f"{f['base_turn_deg']:+.1f} deg (the clip's root path: {f['clip_root_travel_m']:.2f} m, "
+        f"{f['clip_turn_deg']:+.1f} deg)"
+        + (
+            f"; at its end {f['clip_end_offset_m']:.2f} m from the path's end"
+            if f["clip_end_offset_m"] is not None
+            else f"; {f['clip_s']:.1f} s of it reached"
+        )
+        + f"{env} ({travel['judged_on']})"
+    )
+    if f["after_clip_s"] is not None:
+        print(
+            f"  after it          {f['after_clip_travel_m']:.2f} m in {f['after_clip_s']:.1f} s "
+            f"(farthest {f['after_clip_max_m']:.2f} m), turned {f['after_clip_turn_deg']:+.1f} deg"
+        )
+    print(
+        f"  base ends         {f['end_offset_m']:.2f} m from where the clip's root path "
+        + ("ends" if f["after_clip_s"] is not None else "is at the time reached")
+    )
+    off = travel.get("off_path") or []
+    if off:
+        why = []
+        if f["end_offset_m"] > travel["off_path_m"]:
+            why.append(f"ends {f['end_offset_m']:.2f} m from the clip's end (bound "
+                       f"{travel['off_path_m']:g} m)")  # fmt: skip
+        if (f["after_clip_max_m"] or 0.0) > travel["after_clip_m"]:
+            why.append(f"went {f['after_clip_max_m']:.2f} m after the clip (bound "
+                       f"{travel['after_clip_m']:g} m)")  # fmt: skip
+        print(
+            f"  LEFT ITS SPOT     {len(off)} of {len(travel['envs'])} envs; the farthest "
+            f"{'; '.join(why)}: the run fails (exit code 5)"
+        )
 
 
 def _print_reference_contacts(c: dict | None, excused: dict | None) -> None:

@@ -38,6 +38,7 @@ from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.spec.motion_blocks import axis_quat, quat_conj, quat_mul, torso_quat
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
+from sim2real.deploy.tasks.motion.travel import AFTER_CLIP_M, OFF_PATH_M, ClipTravel
 from sim2real.deploy.tasks.velocity import VelocityTask
 
 #: Body groups of the joint-angle error, by a word of the joint's name (the first that matches).
@@ -78,7 +79,10 @@ class TrackingTask:
             ``stopped`` (a stop ended it), ``joint_rms_rad``, ``anchor_error_deg_mean``,
             ``mpjpe_mm`` (None for a play with no judged tick), ``ticks``, ``interventions`` and
             ``safety_interventions`` (ticks, while the clip and its transition played),
-            ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``). A play the
+            ``rest_interventions`` and ``rest_safety_interventions`` (after them, until the
+            play was logged: an exhibition's rest), ``travel`` (the base against the clip's
+            root path: :meth:`ClipTravel.figures
+            <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`), ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``). A play the
             run's end cut short is no entry of it: :meth:`plays` adds it (``unfinished``).
     """
 
@@ -97,7 +101,8 @@ class TrackingTask:
         self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
         self.play_log: list[list[dict]] = [[] for _ in range(envs)]
         self._clock_now = 0.0  # s, the runtime's time at the last tick
-        self._play = np.zeros((envs, 6))  # this play's sq error, ticks, any, safety, anchor, mpjpe
+        # this play's sq error, ticks, any, safety, anchor, mpjpe; the rest's any, safety
+        self._play = np.zeros((envs, 8))
         self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
         self._thermal = getattr(backend, "thermal", None)
         self._peak = np.full((envs, robot.n_joints), -np.inf)  # this play's winding peak, degC
@@ -116,6 +121,13 @@ class TrackingTask:
         self.ticks = np.zeros(envs, dtype=np.int64)
         self.mpjpe_sum = np.zeros(envs)
         self.heading = np.zeros(envs)
+        self.travel = ClipTravel(clock, envs)
+        self.dead_reckoned = np.zeros((envs, 2))  # m, no truth: the estimate's velocity summed
+        #: (envs,) bool: the clip is over and the robot handed to another policy
+        #: (:meth:`hand_over`): the clip does not start again
+        self.handed_over = np.zeros(envs, dtype=bool)
+        #: what follows the clip, as the run decided it (:meth:`follows`)
+        self.after: dict = {"follows": clock.playback}
         import pinocchio as pin
 
         model = robot.pin_model
@@ -155,24 +167,48 @@ class TrackingTask:
         turn = yaw_of(self.truth()[e, 3:7]) - yaw_of(state.base.orientation[e])
         self.heading[e] = np.angle(np.exp(1j * turn))
 
+    def follows(self, follows: str, policy: str | None = None, blend_s: float = 0.0) -> None:
+        """Say what follows the clip (the summary's): ``handover`` to ``policy`` (blended over
+        ``blend_s`` s), else the playback's hold."""
+        self.after = {"follows": follows, "policy": policy, "blend_s": blend_s}
+
+    def hand_over(self, envs: np.ndarray) -> None:
+        """The envs of ``envs`` (bool) are handed to another policy at their clip's end: their
+        clip does not start again (a stop and a new RUNNING run that policy)."""
+        self.handed_over |= np.asarray(envs, dtype=bool)
+
+    def _locate(self, runtime) -> None:
+        """The base's planar position and heading into :attr:`travel`: the plant's truth, or
+        the estimate (its world velocity summed, its yaw: both drift)."""
+        if self.truth is not None:
+            base = self.truth()
+            self.travel.update(base[:, :2], yaw_of(base[:, 3:7]), self.dt)
+            return
+        b = runtime.state.base
+        self.dead_reckoned += b.linear_velocity_world[:, :2] * self.dt
+        self.travel.update(self.dead_reckoned, yaw_of(b.orientation), self.dt)
+
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick (module docstring): judge the tick that ran, then write the next one's."""
         self.velocity(runtime, truth)
         self._clock_now = runtime.time
+        self._locate(runtime)
         running = runtime.mode == RUNNING
         clock = self.motion
         playing = ~np.isnan(clock.time)
-        first = running & ~playing
+        first = running & ~playing & ~self.handed_over
         if first.any() and self.start_after > 0.0:
             first &= self.waited >= self.start_after - 0.5 * self.dt
             self.waited[running & ~playing] += self.dt
         if first.any():
             clock.start(first)  # this tick read the first frame: it was time 0
+            self.travel.begin(first)
         playing = running & ~np.isnan(clock.time)
         if playing.any():
             clip = playing & (np.nan_to_num(clock.time, nan=np.inf) < clock.length)
             self._judge(runtime, clip)  # the clip, not its last frame held
             clock.advance(self.dt, playing)
+            self.travel.reach(clock.time, playing)
             if clock.restarted.any():  # an exhibition's next play: aligned as at its start
                 state = runtime.state
                 clock.align(clock.restarted, state.base.orientation, state.q[:, self.waist])
@@ -181,7 +217,8 @@ class TrackingTask:
             np.maximum(self.progress, now, out=self.progress)
             clock.write(self._buffer(runtime), playing)
         with np.errstate(invalid="ignore"):
-            self._count_interventions(playing & (clock.time <= clock.total))
+            clip = playing & (clock.time <= clock.total)
+            self._count_interventions(clip, playing & ~clip)
         ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
         if clock.playback in ("loop", "exhibition"):
             ended |= clock.restarted & (self._play[:, 1] > 0)
@@ -189,6 +226,8 @@ class TrackingTask:
         stopped = ~running & ~np.isnan(clock.time)
         for e in np.flatnonzero(ended | stopped):
             self._log_play(e, bool(stopped[e]))
+        if clock.restarted.any():  # the next play's root path laid from here
+            self.travel.begin(clock.restarted)
         if stopped.any():
             clock.stop(stopped)
         idle = ~running
@@ -230,13 +269,15 @@ class TrackingTask:
         hot = np.where(playing[:, None], self._thermal.winding_temperature, -np.inf)
         np.maximum(self._peak, hot, out=self._peak)
 
-    def _count_interventions(self, playing: np.ndarray) -> None:
-        """Add the guard's interventions of this tick to each playing env's play."""
+    def _count_interventions(self, playing: np.ndarray, rest: np.ndarray) -> None:
+        """Add the guard's interventions of this tick to each playing env's play (the clip and
+        its transition), or to its rest after them (``rest``)."""
         iv = self.interventions
         if iv is None:
             return
         now = np.stack([iv.any, iv.safety], axis=1)
         self._play[:, 2:4] += np.where(playing[:, None], now - self._seen, 0)
+        self._play[:, 6:8] += np.where(rest[:, None], now - self._seen, 0)
         self._seen[:] = now
 
     def _log_play(self, e: int, stopped: bool) -> None:
@@ -262,7 +303,7 @@ class TrackingTask:
     def _play_entry(self, e: int, stopped: bool, whole: bool) -> dict:
         """Env ``e``'s play so far as :attr:`play_log` logs it; ``whole``: its clip played to
         the end (``completed`` 1), else the share its clock reached."""
-        sq, ticks, any_, safety, anchor, mpjpe = self._play[e]
+        sq, ticks, any_, safety, anchor, mpjpe, rest_any, rest_safety = self._play[e]
         t = self.motion.time[e]
         done = 1.0 if whole else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
         return {
@@ -271,7 +312,9 @@ class TrackingTask:
             "anchor_error_deg_mean": float(anchor / ticks) if ticks else None,
             "mpjpe_mm": float(mpjpe / ticks) if ticks else None,
             "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
+            "rest_interventions": int(rest_any), "rest_safety_interventions": int(rest_safety),
             "end_s": float(self._clock_now), **self._play_heat(e),
+            "travel": self.travel.figures(e),
         }  # fmt: skip
 
     def _play_heat(self, e: int) -> dict:
@@ -359,7 +402,25 @@ class TrackingTask:
             "end_from_home_rad_rms": self._from_home(),
             "reference_contacts": self.contacts.summary(),
             "plays_logged": [p for e in range(self.envs) for p in self.plays(e)],
+            "after_clip": dict(self.after),
+            "travel": self.travel_summary(),
         }
+
+    def travel_summary(self) -> dict:
+        """The base's travel against the clip's root path now, per env
+        (:meth:`ClipTravel.figures <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`:
+        ``envs``), the bounds, what judged it and ``off_path``: the envs beyond a bound."""
+        envs = [self.travel.figures(e) for e in range(self.envs)]
+        return {
+            "envs": envs,
+            "off_path_m": OFF_PATH_M,
+            "after_clip_m": AFTER_CLIP_M,
+            "judged_on": (
+                "plant truth" if self.truth is not None
+                else "estimate (its world velocity summed, its yaw: both drift)"
+            ),
+            "off_path": [e for e, f in enumerate(envs) if f is not None and f["off_path"]],
+        }  # fmt: skip
 
     def report(self, runtime) -> dict:
         report = self.velocity.report(runtime)
@@ -375,7 +436,10 @@ class TrackingTask:
     def parts(self) -> dict:
         """The stateful parts: the clip's clock, the judged figures and play log
         (:class:`TrackingFigures`), the velocity task's (its falls)."""
-        return {"motion": self.motion, "figures": TrackingFigures(self), **self.velocity.parts()}
+        return {
+            "motion": self.motion, "figures": TrackingFigures(self), "travel": self.travel,
+            **self.velocity.parts(),
+        }  # fmt: skip
 
     def state_dict(self, env: int | None = None) -> dict:
         from sim2real.deploy.core.stateful import parts_state_dict
@@ -395,8 +459,9 @@ class TrackingFigures:
 
     Fields (the env axis kept): ``progress``, ``sq_error``, ``anchor_sum``, ``anchor_max``,
     ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
-    (envs, 6): the play under way's sums (squared joint error, ticks, interventions, safety
-    interventions, anchor error, MPJPE), ``seen`` (envs, 2): the intervention counts at the last
+    (envs, 8): the play under way's sums (squared joint error, ticks, interventions, safety
+    interventions, anchor error, MPJPE, then the rest's interventions and safety interventions),
+    ``dead_reckoned`` (envs, 2) m and ``handed_over`` (envs,) (the task's), ``seen`` (envs, 2): the intervention counts at the last
     tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON text of the
     envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the runtime's time at
     the last tick (the batch's).
@@ -404,7 +469,7 @@ class TrackingFigures:
 
     ARRAYS = (
         "progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited",
-        "heading",
+        "heading", "dead_reckoned", "handed_over",
     )  # fmt: skip
     PRIVATE = {"play": "_play", "seen": "_seen", "peak": "_peak"}
 

@@ -135,3 +135,61 @@ def test_the_clip_root_path_is_laid_from_where_and_how_the_base_starts(tmp_path)
     assert after["after_clip_travel_m"] == pytest.approx(0.6)
     assert after["after_clip_turn_deg"] == pytest.approx(360.0)
     assert after["after_clip_s"] == pytest.approx(0.8) and after["off_path"]
+
+
+def _play(clip_m: float, end_offset: float, rest_m: float | None, iv: int, rest_iv: int) -> dict:
+    rest = rest_m is not None
+    return {
+        "stopped": False, "interventions": iv, "rest_interventions": rest_iv,
+        "travel": {
+            "base_travel_m": clip_m, "clip_end_offset_m": end_offset,
+            "after_clip_s": 12.0 if rest else None,
+            "after_clip_travel_m": rest_m, "after_clip_max_m": rest_m,
+            "end_offset_m": end_offset + (rest_m or 0.0),
+            "off_path": end_offset + (rest_m or 0.0) > OFF_PATH_M or (rest and rest_m > 0.5),
+        },
+    }  # fmt: skip
+
+
+def test_an_exhibitions_rests_are_judged_apart_from_its_clips():
+    """A session whose clips stay on their spot but whose rests carry the robot away: the
+    rests' travel and guard ticks are counted apart from the clips', the plays that left their
+    spot are named, and the soak's ``on_spot`` check fails with exit code 10."""
+    from sim2real.eval.cli import EXIT_LEFT_SPOT, exit_code
+    from sim2real.eval.report.build import _on_spot_check
+    from sim2real.eval.soak.exhibition import clips_and_rests
+
+    plays = [_play(0.1, 0.05, 15.0, 20, 300), _play(0.2, 0.1, 14.0, 25, 310), _play(0.1, 0.1, None, 5, 0)]
+    x = clips_and_rests(plays)
+    assert x["clips"] == {"travel_m": pytest.approx(0.4), "worst_end_offset_m": 0.1,
+                          "interventions": 50}  # fmt: skip
+    assert x["rests"]["count"] == 2 and x["rests"]["travel_m"] == pytest.approx(29.0)
+    assert x["rests"]["worst_travel_m"] == 15.0 and x["rests"]["interventions"] == 610
+    assert x["left_spot"] == [1, 2]
+    passed, message = _on_spot_check({"exhibition": {"clips_and_rests": x}})
+    assert not passed and "plays [1, 2]" in message and "rests: 2, travel 29.00 m" in message
+    report = {"checks": {"on_spot": {"passed": False, "failed_sessions": ["seed0000"]}}}
+    assert exit_code(report) == EXIT_LEFT_SPOT
+    still = clips_and_rests([_play(0.1, 0.05, 0.1, 20, 3), _play(0.1, 0.05, 0.05, 20, 3)])
+    assert still["left_spot"] == [] and _on_spot_check({"exhibition": {"clips_and_rests": still}})[0]
+    assert _on_spot_check({"exhibition": None}) == (True, "no motion clip: not judged")
+
+
+def test_an_exhibition_on_the_rig_logs_each_plays_travel_and_rest(go2, go2_onnx, tmp_path):
+    """The tracking task's exhibition on the go2 (clip 0.3 s, 0.2 s to home, 0.2 s standing):
+    each play logged carries its travel, its rest's (from where its clip ended) and the rest's
+    guard ticks apart; the walker standing at a zero command stays on its spot."""
+    from sim2real.eval.soak.exhibition import clips_and_rests
+    from tests.test_tracking_resume import _rig, _run
+
+    rig = _rig(go2, go2_onnx, tmp_path)
+    _run(rig, 300)
+    plays = rig.task.plays(0)
+    assert len(plays) >= 3
+    for p in plays[:-1]:
+        f = p["travel"]
+        assert f["after_clip_s"] == pytest.approx(0.4, abs=0.03)  # 0.2 s to home + 0.2 s rest
+        assert f["after_clip_travel_m"] is not None and "rest_interventions" in p
+    x = clips_and_rests(plays)
+    assert x["rests"]["count"] >= 2 and x["left_spot"] == []
+    assert x["rests"]["travel_m"] < 0.5 and x["clips"]["travel_m"] < 0.5

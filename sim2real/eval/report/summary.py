@@ -288,6 +288,19 @@ def exhibition_lines(s: dict) -> list[str]:
             f"  heat         no winding reached derating in {h['clips']} clips (hottest degC: "
             f"{hot or 'n/a'})"
         )
+    cr = x.get("clips_and_rests")
+    if cr:
+        clips, rests = cr["clips"], cr["rests"]
+        worst = clips["worst_end_offset_m"]
+        lines.append(
+            f"  clips/rests  clips: base travel {clips['travel_m']:.2f} m, the worst ended "
+            + (f"{worst:.2f} m" if worst is not None else "n/a")
+            + f" from its root path's end, guard interventions {clips['interventions']} ticks; "
+            f"rests ({rests['count']}): travel {rests['travel_m']:.2f} m"
+            + (f" (worst {rests['worst_travel_m']:.2f} m)" if rests["count"] else "")
+            + f", guard interventions {rests['interventions']} ticks"
+            + (f"; LEFT ITS SPOT in plays {cr['left_spot'][:10]}" if cr["left_spot"] else "")
+        )
     c = x["reference_contacts"]
     if c["frames_touching"]:
         lines.append(

@@ -39,6 +39,46 @@ def check_exhibition(policy, robot, config) -> None:
     exhibition_task({}, policy, robot, 1, config)
 
 
+def clips_and_rests(plays: list[dict]) -> dict:
+    """The clips of a session's ``plays`` apart from the rests between them (the tracking task's
+    play log: each play's ``travel`` against its clip's root path,
+    :meth:`~sim2real.deploy.tasks.motion.travel.ClipTravel.figures`, and its guard
+    interventions): a rest is what follows a clip until the next starts (its transition to home
+    and its standing), a hold judged as ``deploy-run`` judges one.
+
+    Returns:
+        ``clips``: ``travel_m`` (the base's over every clip, summed), ``worst_end_offset_m``
+        (the farthest a clip ended from its root path's end), ``interventions``; ``rests``:
+        ``count``, ``travel_m`` (summed: each rest's from where its clip ended),
+        ``worst_travel_m`` (the farthest a rest went), ``interventions`` (its ticks, the rest
+        apart from the transition, which counts with its clip); ``left_spot``: the 1-based plays
+        whose base left its spot (:data:`~sim2real.deploy.tasks.motion.travel.OFF_PATH_M`).
+    """
+    travel = [(i, p["travel"]) for i, p in enumerate(plays, start=1) if p.get("travel")]
+    rests = [(i, f) for i, f in travel if f["after_clip_s"] is not None]
+
+    def total(rows, key):
+        return float(sum(f[key] for _, f in rows if f[key] is not None))
+
+    return {
+        "clips": {
+            "travel_m": total(travel, "base_travel_m"),
+            "worst_end_offset_m": max(
+                (f["clip_end_offset_m"] for _, f in travel if f["clip_end_offset_m"] is not None),
+                default=None,
+            ),
+            "interventions": int(sum(p.get("interventions", 0) for p in plays)),
+        },
+        "rests": {
+            "count": len(rests),
+            "travel_m": total(rests, "after_clip_travel_m"),
+            "worst_travel_m": max((f["after_clip_max_m"] for _, f in rests), default=None),
+            "interventions": int(sum(p.get("rest_interventions", 0) for p in plays)),
+        },
+        "left_spot": [i for i, f in travel if f["off_path"]],
+    }
+
+
 def heat_report(plays: list[dict]) -> dict:
     """The heat report of one session's ``plays`` (the tracking task's play log, in order).
 

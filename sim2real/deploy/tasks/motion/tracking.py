@@ -219,9 +219,10 @@ class TrackingTask:
         with np.errstate(invalid="ignore"):
             clip = playing & (clock.time <= clock.total)
             self._count_interventions(clip, playing & ~clip)
-        ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
-        if clock.playback in ("loop", "exhibition"):
-            ended |= clock.restarted & (self._play[:, 1] > 0)
+        if clock.playback in ("loop", "exhibition"):  # logged with its rest, at the restart
+            ended = clock.restarted & (self._play[:, 1] > 0)
+        else:
+            ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
         self._heat(playing)
         stopped = ~running & ~np.isnan(clock.time)
         for e in np.flatnonzero(ended | stopped):
@@ -289,10 +290,15 @@ class TrackingTask:
     def open_play(self, e: int) -> dict | None:
         """Env ``e``'s play still open when the run or session ends (the clip or its transition
         playing, a tick of it judged), as :attr:`play_log` logs a play with ``unfinished``
-        True and ``completed`` the share of the clip reached; None without one. Changes no
+        True and ``completed`` the share of the clip reached; an exhibition's or a loop's play
+        whose clip had ended (its rest under way: such a play is logged at the next start, with
+        its rest) as a whole play with ``rest_cut_short`` True; None without one. Changes no
         state (a checkpoint taken after it resumes the same play)."""
-        if np.isnan(self.motion.time[e]) or self._play[e, 1] <= 0:
+        t = self.motion.time[e]
+        if np.isnan(t) or self._play[e, 1] <= 0:
             return None
+        if t >= self.motion.length:  # only an exhibition or a loop keeps a play open past it
+            return {**self._play_entry(e, False, True), "rest_cut_short": True}
         return {**self._play_entry(e, False, False), "unfinished": True}
 
     def plays(self, e: int) -> list[dict]:

@@ -87,9 +87,7 @@ def test_a_second_policy_takes_the_robot_at_the_clips_end(dancer, tmp_path, caps
         (["--after-clip-blend=-1"], "--after-clip-blend -1.0: expected s >= 0"),
     ],
 )
-def test_a_hand_over_that_cannot_be_is_refused_in_one_line(
-    dancer, tmp_path, capsys, extra, match
-):
+def test_a_hand_over_that_cannot_be_is_refused_in_one_line(dancer, tmp_path, capsys, extra, match):
     policy, stand, clip = dancer
     argv = ["--policy", f"dance={policy}", "--policy", f"stand={stand}", "--motion", str(clip)]
     code, _, out = _run([*argv, *extra], tmp_path, capsys)
@@ -159,7 +157,11 @@ def test_an_exhibitions_rests_are_judged_apart_from_its_clips():
     from sim2real.eval.report.build import _on_spot_check
     from sim2real.eval.soak.exhibition import clips_and_rests
 
-    plays = [_play(0.1, 0.05, 15.0, 20, 300), _play(0.2, 0.1, 14.0, 25, 310), _play(0.1, 0.1, None, 5, 0)]
+    plays = [
+        _play(0.1, 0.05, 15.0, 20, 300),
+        _play(0.2, 0.1, 14.0, 25, 310),
+        _play(0.1, 0.1, None, 5, 0),
+    ]
     x = clips_and_rests(plays)
     assert x["clips"] == {"travel_m": pytest.approx(0.4), "worst_end_offset_m": 0.1,
                           "interventions": 50}  # fmt: skip
@@ -171,7 +173,9 @@ def test_an_exhibitions_rests_are_judged_apart_from_its_clips():
     report = {"checks": {"on_spot": {"passed": False, "failed_sessions": ["seed0000"]}}}
     assert exit_code(report) == EXIT_LEFT_SPOT
     still = clips_and_rests([_play(0.1, 0.05, 0.1, 20, 3), _play(0.1, 0.05, 0.05, 20, 3)])
-    assert still["left_spot"] == [] and _on_spot_check({"exhibition": {"clips_and_rests": still}})[0]
+    assert (
+        still["left_spot"] == [] and _on_spot_check({"exhibition": {"clips_and_rests": still}})[0]
+    )
     assert _on_spot_check({"exhibition": None}) == (True, "no motion clip: not judged")
 
 

@@ -79,11 +79,12 @@ class TrackingTask:
             ``stopped`` (a stop ended it), ``joint_rms_rad``, ``anchor_error_deg_mean``,
             ``mpjpe_mm`` (None for a play with no judged tick), ``ticks``, ``interventions`` and
             ``safety_interventions`` (ticks, while the clip and its transition played),
-            ``rest_interventions`` and ``rest_safety_interventions`` (after them, until the
-            play was logged: an exhibition's rest), ``travel`` (the base against the clip's
-            root path: :meth:`ClipTravel.figures
-            <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`), ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``). A play the
-            run's end cut short is no entry of it: :meth:`plays` adds it (``unfinished``).
+            ``rest_interventions`` and ``rest_safety_interventions`` (after them, until the play
+            was logged: an exhibition's rest), ``travel`` (the base against the clip's root
+            path: :meth:`ClipTravel.figures
+            <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`), ``end_s`` and its heat
+            (``hottest``, ``hottest_c``, ``derating``). A play the run's end cut short is no
+            entry of it: :meth:`plays` adds it (``unfinished``).
     """
 
     name = "tracking"
@@ -467,10 +468,10 @@ class TrackingFigures:
     ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
     (envs, 8): the play under way's sums (squared joint error, ticks, interventions, safety
     interventions, anchor error, MPJPE, then the rest's interventions and safety interventions),
-    ``dead_reckoned`` (envs, 2) m and ``handed_over`` (envs,) (the task's), ``seen`` (envs, 2): the intervention counts at the last
-    tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON text of the
-    envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the runtime's time at
-    the last tick (the batch's).
+    ``dead_reckoned`` (envs, 2) m and ``handed_over`` (envs,) (the task's), ``seen`` (envs, 2):
+    the intervention counts at the last tick, ``peak`` (envs, n) degC: the play's hottest
+    windings; ``play_log``: JSON text of the envs' ended plays (:attr:`TrackingTask.play_log`);
+    ``clock_now``: s, the runtime's time at the last tick (the batch's).
     """
 
     ARRAYS = (

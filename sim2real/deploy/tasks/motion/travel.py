@@ -153,7 +153,9 @@ class ClipTravel:
             "after_clip_turn_deg": math.degrees(self.yaw[e] - self.end[e, 2]) if ended else None,
             "end_offset_m": end_offset,
         }
-        out["off_path"] = end_offset > OFF_PATH_M or (ended and out["after_clip_max_m"] > AFTER_CLIP_M)
+        out["off_path"] = end_offset > OFF_PATH_M or (
+            ended and out["after_clip_max_m"] > AFTER_CLIP_M
+        )
         return out
 
     def state_dict(self, env: int | None = None) -> dict:

@@ -56,7 +56,7 @@ def test_a_policy_walking_away_after_its_clip_fails_the_run(dancer, tmp_path, ca
     assert f["after_clip_travel_m"] > 2 * OFF_PATH_M and f["end_offset_m"] > OFF_PATH_M
     assert f["clip_root_travel_m"] == pytest.approx(0.9, abs=0.02)  # 2.02 s at 0.45 m/s
     assert "LEFT ITS SPOT" in out and "exit code 5" in out
-    assert "a hold judged" in out
+    assert "a hold judged" in out and "guard interventions" in out
     assert "walked " not in out and "  heading " not in out  # no velocity task in a clip run
 
 
@@ -164,7 +164,7 @@ def test_an_exhibitions_rests_are_judged_apart_from_its_clips():
     ]
     x = clips_and_rests(plays)
     assert x["clips"] == {"travel_m": pytest.approx(0.4), "worst_end_offset_m": 0.1,
-                          "interventions": 50}  # fmt: skip
+                          "interventions": 50, "hard_limit_ticks": 0, "violation_ticks": 0}  # fmt: skip
     assert x["rests"]["count"] == 2 and x["rests"]["travel_m"] == pytest.approx(29.0)
     assert x["rests"]["worst_travel_m"] == 15.0 and x["rests"]["interventions"] == 610
     assert x["left_spot"] == [1, 2]
@@ -191,9 +191,33 @@ def test_an_exhibition_on_the_rig_logs_each_plays_travel_and_rest(go2, go2_onnx,
     plays = rig.task.plays(0)
     assert len(plays) >= 3
     for p in plays[:-1]:
+        assert {"hard_limit_ticks", "violation_ticks", "rest_hard_limit_ticks"} <= set(p)
         f = p["travel"]
         assert f["after_clip_s"] == pytest.approx(0.4, abs=0.03)  # 0.2 s to home + 0.2 s rest
         assert f["after_clip_travel_m"] is not None and "rest_interventions" in p
     x = clips_and_rests(plays)
     assert x["rests"]["count"] >= 2 and x["left_spot"] == []
+    total = rig.violations.any[0]  # every tick with a violation is a clip's, a rest's or before
+    assert x["clips"]["violation_ticks"] + x["rests"]["violation_ticks"] <= total
     assert x["rests"]["travel_m"] < 0.5 and x["clips"]["travel_m"] < 0.5
+
+
+def test_a_fall_in_a_rest_is_counted_apart_from_a_fall_in_a_clip():
+    """A clip played to its end whose robot fell in the rest after it is a completed clip and
+    a rest fall; a fall during a clip is neither; the exhibition line says how many fell in
+    the rests."""
+    from sim2real.eval.report.summary import exhibition_lines
+    from sim2real.eval.soak.exhibition import clips_and_rests, heat_report
+
+    def play(stopped, in_rest, completed):
+        return {**_play(0.1, 0.05, 0.2 if in_rest else None, 10, 5), "stopped": stopped,
+                "stopped_in_rest": in_rest, "completed": completed, "joint_rms_rad": 0.09}  # fmt: skip
+
+    plays = [play(False, False, 1.0), play(True, True, 1.0), play(True, False, 0.4)]
+    h = heat_report(plays)
+    assert (h["completed"], h["falls"], h["rest_falls"]) == (2, 2, 1)
+    x = {"clip_s": 38.8, "stand_s": 2.0, "rest_s": 10.0, "clips": plays, "heat": h,
+         "reference_contacts": {"frames_touching": 0}, "clips_and_rests": clips_and_rests(plays)}  # fmt: skip
+    lines = exhibition_lines({"id": "seed0000", "exhibition": x})
+    assert "completed 2, falls 2 (1 in the rests after their clips)" in lines[0]
+    assert any(line.startswith("  clips/rests  clips: base travel 0.30 m") for line in lines)

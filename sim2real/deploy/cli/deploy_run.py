@@ -224,8 +224,9 @@ def after_clip_policy(args, policies: dict, first) -> tuple[str, object] | None:
     policy)``; None: the clip's end is a hold (``--motion-playback``), judged.
 
     Raises:
-        ValueError: a name no ``--policy`` gives, the first policy named, ``--envs`` other than
-            1, ``--motion-playback`` given too, a negative ``--after-clip-blend``.
+        ValueError: a name no ``--policy`` gives, the first policy named, ``--operator`` or
+            ``--motion-playback`` given too, ``--envs`` other than 1, a negative
+            ``--after-clip-blend``.
     """
     name = args.after_clip
     if name is None:
@@ -234,6 +235,11 @@ def after_clip_policy(args, policies: dict, first) -> tuple[str, object] | None:
         if getattr(args, "operator", None) or len(policies) < 2 or not reads_motion(first.spec):
             return None
         name = list(policies)[1]
+    if getattr(args, "operator", None):
+        raise ValueError(
+            f"--after-clip {name} and --operator: the operator's buttons switch the policies; "
+            "give one of them"
+        )
     if name not in policies or policies[name] is first:
         raise ValueError(
             f"--after-clip {name}: expected the NAME of a --policy NAME=FILE after the first "

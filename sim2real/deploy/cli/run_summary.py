@@ -149,7 +149,10 @@ def _print_after_clip(t: dict) -> None:
     if f["after_clip_s"] is not None:
         print(
             f"  after it          {f['after_clip_travel_m']:.2f} m in {f['after_clip_s']:.1f} s "
-            f"(farthest {f['after_clip_max_m']:.2f} m), turned {f['after_clip_turn_deg']:+.1f} deg"
+            f"(farthest {f['after_clip_max_m']:.2f} m), turned {f['after_clip_turn_deg']:+.1f} deg; "
+            f"guard interventions {travel.get('after_clip_interventions', 0)} ticks, hard limit "
+            f"{travel.get('after_clip_hard_limit_ticks', 0)}, any violation "
+            f"{travel.get('after_clip_violation_ticks', 0)} (true state, every env)"
         )
     print(
         f"  base ends         {f['end_offset_m']:.2f} m from where the clip's root path "

@@ -80,8 +80,10 @@ class TrackingTask:
             ``mpjpe_mm`` (None for a play with no judged tick), ``ticks``, ``interventions`` and
             ``safety_interventions`` (ticks, while the clip and its transition played),
             ``rest_interventions`` and ``rest_safety_interventions`` (after them, until the play
-            was logged: an exhibition's rest), ``travel`` (the base against the clip's root
-            path: :meth:`ClipTravel.figures
+            was logged: an exhibition's rest), ``hard_limit_ticks`` and ``violation_ticks``
+            (true state, the rig's monitor: :meth:`watch_violations`; 0 without it) and the
+            rest's ``rest_hard_limit_ticks``, ``rest_violation_ticks``, ``travel`` (the base
+            against the clip's root path: :meth:`ClipTravel.figures
             <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`), ``end_s`` and its heat
             (``hottest``, ``hottest_c``, ``derating``). A play the run's end cut short is no
             entry of it: :meth:`plays` adds it (``unfinished``).
@@ -102,9 +104,15 @@ class TrackingTask:
         self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
         self.play_log: list[list[dict]] = [[] for _ in range(envs)]
         self._clock_now = 0.0  # s, the runtime's time at the last tick
-        # this play's sq error, ticks, any, safety, anchor, mpjpe; the rest's any, safety
-        self._play = np.zeros((envs, 8))
+        # this play's sq error, ticks, any, safety, anchor, mpjpe; the rest's any, safety; the
+        # play's true-state hard-limit and any-violation ticks, then the rest's
+        self._play = np.zeros((envs, 12))
         self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
+        self._vseen = np.zeros((envs, 2), dtype=np.int64)  # violations hard_limit, any last tick
+        self.violations = None  # the rig's true-state violation monitor (watch_violations)
+        #: (envs, 3) after the clip's end (its hold, or the policy handed over to), RUNNING:
+        #: guard intervention ticks, true-state hard-limit ticks, ticks with any violation
+        self.after_counts = np.zeros((envs, 3), dtype=np.int64)
         self._thermal = getattr(backend, "thermal", None)
         self._peak = np.full((envs, robot.n_joints), -np.inf)  # this play's winding peak, degC
         self._derate = np.array([m.derating_start_temperature for m in robot.motors])
@@ -219,7 +227,8 @@ class TrackingTask:
             clock.write(self._buffer(runtime), playing)
         with np.errstate(invalid="ignore"):
             clip = playing & (clock.time <= clock.total)
-            self._count_interventions(clip, playing & ~clip)
+            after = running & (clock.time >= clock.length)
+            self._count_interventions(clip, playing & ~clip, after)
         if clock.playback in ("loop", "exhibition"):  # logged with its rest, at the restart
             ended = clock.restarted & (self._play[:, 1] > 0)
         else:
@@ -271,16 +280,32 @@ class TrackingTask:
         hot = np.where(playing[:, None], self._thermal.winding_temperature, -np.inf)
         np.maximum(self._peak, hot, out=self._peak)
 
-    def _count_interventions(self, playing: np.ndarray, rest: np.ndarray) -> None:
-        """Add the guard's interventions of this tick to each playing env's play (the clip and
-        its transition), or to its rest after them (``rest``)."""
-        iv = self.interventions
-        if iv is None:
-            return
-        now = np.stack([iv.any, iv.safety], axis=1)
-        self._play[:, 2:4] += np.where(playing[:, None], now - self._seen, 0)
-        self._play[:, 6:8] += np.where(rest[:, None], now - self._seen, 0)
-        self._seen[:] = now
+    def watch_violations(self, monitor) -> None:
+        """Count ``monitor``'s (a :class:`~sim2real.deploy.monitors.violations.ViolationMonitor`,
+        updated before this task each tick) hard-limit and any-violation ticks per play, the
+        clip's apart from its rest's, and after the clip."""
+        self.violations = monitor
+        self._vseen[:] = np.stack([monitor.counts["hard_limit"], monitor.any], axis=1)
+
+    def _count_interventions(self, playing: np.ndarray, rest: np.ndarray, after) -> None:
+        """Add the guard's interventions and the true-state violations of this tick to each
+        playing env's play (the clip and its transition), or to its rest after them (``rest``),
+        and to the ticks after the clip's end (``after``)."""
+        iv, v = self.interventions, self.violations
+        if iv is not None:
+            now = np.stack([iv.any, iv.safety], axis=1)
+            step = now - self._seen
+            self._play[:, 2:4] += np.where(playing[:, None], step, 0)
+            self._play[:, 6:8] += np.where(rest[:, None], step, 0)
+            self.after_counts[:, 0] += np.where(after, step[:, 0], 0)
+            self._seen[:] = now
+        if v is not None:
+            now = np.stack([v.counts["hard_limit"], v.any], axis=1)
+            step = now - self._vseen
+            self._play[:, 8:10] += np.where(playing[:, None], step, 0)
+            self._play[:, 10:12] += np.where(rest[:, None], step, 0)
+            self.after_counts[:, 1:3] += np.where(after[:, None], step, 0)
+            self._vseen[:] = now
 
     def _log_play(self, e: int, stopped: bool) -> None:
         """Close env ``e``'s play into :attr:`play_log` and start a new one."""
@@ -310,16 +335,20 @@ class TrackingTask:
     def _play_entry(self, e: int, stopped: bool, whole: bool) -> dict:
         """Env ``e``'s play so far as :attr:`play_log` logs it; ``whole``: its clip played to
         the end (``completed`` 1), else the share its clock reached."""
-        sq, ticks, any_, safety, anchor, mpjpe, rest_any, rest_safety = self._play[e]
+        sq, ticks, any_, safety, anchor, mpjpe, rest_any, rest_safety = self._play[e, :8]
+        hard, viol, rest_hard, rest_viol = (int(x) for x in self._play[e, 8:])
         t = self.motion.time[e]
         done = 1.0 if whole else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
         return {
             "completed": done, "stopped": stopped,
+            "stopped_in_rest": bool(stopped and np.nan_to_num(t) >= self.motion.length),
             "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
             "anchor_error_deg_mean": float(anchor / ticks) if ticks else None,
             "mpjpe_mm": float(mpjpe / ticks) if ticks else None,
             "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
             "rest_interventions": int(rest_any), "rest_safety_interventions": int(rest_safety),
+            "hard_limit_ticks": hard, "violation_ticks": viol,
+            "rest_hard_limit_ticks": rest_hard, "rest_violation_ticks": rest_viol,
             "end_s": float(self._clock_now), **self._play_heat(e),
             "travel": self.travel.figures(e),
         }  # fmt: skip
@@ -427,6 +456,9 @@ class TrackingTask:
                 else "estimate (its world velocity summed, its yaw: both drift)"
             ),
             "off_path": [e for e, f in enumerate(envs) if f is not None and f["off_path"]],
+            "after_clip_interventions": int(self.after_counts[:, 0].sum()),
+            "after_clip_hard_limit_ticks": int(self.after_counts[:, 1].sum()),
+            "after_clip_violation_ticks": int(self.after_counts[:, 2].sum()),
         }  # fmt: skip
 
     def report(self, runtime) -> dict:
@@ -466,19 +498,21 @@ class TrackingFigures:
 
     Fields (the env axis kept): ``progress``, ``sq_error``, ``anchor_sum``, ``anchor_max``,
     ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
-    (envs, 8): the play under way's sums (squared joint error, ticks, interventions, safety
-    interventions, anchor error, MPJPE, then the rest's interventions and safety interventions),
-    ``dead_reckoned`` (envs, 2) m and ``handed_over`` (envs,) (the task's), ``seen`` (envs, 2):
-    the intervention counts at the last tick, ``peak`` (envs, n) degC: the play's hottest
+    (envs, 12): the play under way's sums (squared joint error, ticks, interventions, safety
+    interventions, anchor error, MPJPE, the rest's interventions and safety interventions, the
+    play's hard-limit and any-violation ticks, the rest's), ``dead_reckoned`` (envs, 2) m,
+    ``handed_over`` (envs,) and ``after_counts`` (envs, 3) (the task's), ``seen`` (envs, 2): the
+    intervention counts at the last tick, ``vseen`` (envs, 2): the violation monitor's
+    hard-limit and any-violation ticks at the last tick, ``peak`` (envs, n) degC: the play's hottest
     windings; ``play_log``: JSON text of the envs' ended plays (:attr:`TrackingTask.play_log`);
     ``clock_now``: s, the runtime's time at the last tick (the batch's).
     """
 
     ARRAYS = (
         "progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited",
-        "heading", "dead_reckoned", "handed_over",
+        "heading", "dead_reckoned", "handed_over", "after_counts",
     )  # fmt: skip
-    PRIVATE = {"play": "_play", "seen": "_seen", "peak": "_peak"}
+    PRIVATE = {"play": "_play", "seen": "_seen", "vseen": "_vseen", "peak": "_peak"}
 
     def __init__(self, task: TrackingTask):
         self.task = task

@@ -46,6 +46,7 @@ from sim2real.deploy.backends.registry import make_backend
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
 from sim2real.deploy.cli.run_operator import (
+    after_clip_policy,
     load_policies,
     open_operator_source,
     operator_hook,
@@ -216,47 +217,6 @@ def realtime_options(args, realtime: bool):
     )
     request.validate()
     return wait, request
-
-
-def after_clip_policy(args, policies: dict, first) -> tuple[str, object] | None:
-    """The policy a clip run hands the robot to at the clip's end (``--after-clip NAME``;
-    without it, the run's second ``--policy`` when there is no ``--operator``), as ``(name,
-    policy)``; None: the clip's end is a hold (``--motion-playback``), judged.
-
-    Raises:
-        ValueError: a name no ``--policy`` gives, the first policy named, ``--operator`` or
-            ``--motion-playback`` given too, ``--envs`` other than 1, a negative
-            ``--after-clip-blend``.
-    """
-    name = args.after_clip
-    if name is None:
-        from sim2real.deploy.tasks.motion.source import reads_motion
-
-        if getattr(args, "operator", None) or len(policies) < 2 or not reads_motion(first.spec):
-            return None
-        name = list(policies)[1]
-    if getattr(args, "operator", None):
-        raise ValueError(
-            f"--after-clip {name} and --operator: the operator's buttons switch the policies; "
-            "give one of them"
-        )
-    if name not in policies or policies[name] is first:
-        raise ValueError(
-            f"--after-clip {name}: expected the NAME of a --policy NAME=FILE after the first "
-            f"(the run's: {list(policies)})"
-        )
-    if args.envs != 1:
-        raise ValueError(
-            f"--after-clip {name}: a hand-over drives one robot: --envs must be 1, got {args.envs}"
-        )
-    if args.motion_playback is not None:
-        raise ValueError(
-            f"--motion-playback {args.motion_playback} and a hand-over to '{name}' at the "
-            "clip's end: give one of them"
-        )
-    if not args.after_clip_blend >= 0.0:
-        raise ValueError(f"--after-clip-blend {args.after_clip_blend}: expected s >= 0")
-    return name, policies[name]
 
 
 def build_rig(

@@ -80,9 +80,10 @@ FORMAT = "soak-checkpoint"
 #: ``violations/down/hard_joint_depth``), and each joint's ticks above its velocity and effort
 #: limits and how far (``violations/speed_joint_*``, ``violations/effort_joint_*``); a version
 #: 16 checkpoint has none.
-#: 18: a motion-tracking session's base travel against its clip's root path (``travel/...``),
-#: its estimate's summed velocity and hand-over (``figures/dead_reckoned``, ``handed_over``) and
-#: each play's rest interventions (``figures/play`` (envs, 8)); a version 17 checkpoint has none.
+#: 18: a motion-tracking session's base travel against its clip's root path (``travel/...``,
+#: with the estimate's summed velocity ``travel/dead_reckoned``), its hand-over and after-clip
+#: ticks (``figures/handed_over``, ``after_counts``, ``vseen``) and each play's rest
+#: interventions and violations (``figures/play`` (envs, 12)); a version 17 checkpoint has none.
 VERSION = 18
 MANIFEST = "checkpoint.json"
 

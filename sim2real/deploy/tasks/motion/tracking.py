@@ -38,7 +38,7 @@ from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.spec.motion_blocks import axis_quat, quat_conj, quat_mul, torso_quat
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
-from sim2real.deploy.tasks.motion.travel import AFTER_CLIP_M, OFF_PATH_M, ClipTravel
+from sim2real.deploy.tasks.motion.travel import ClipTravel
 from sim2real.deploy.tasks.velocity import VelocityTask
 
 #: Body groups of the joint-angle error, by a word of the joint's name (the first that matches).
@@ -131,7 +131,6 @@ class TrackingTask:
         self.mpjpe_sum = np.zeros(envs)
         self.heading = np.zeros(envs)
         self.travel = ClipTravel(clock, envs)
-        self.dead_reckoned = np.zeros((envs, 2))  # m, no truth: the estimate's velocity summed
         #: (envs,) bool: the clip is over and the robot handed to another policy
         #: (:meth:`hand_over`): the clip does not start again
         self.handed_over = np.zeros(envs, dtype=bool)
@@ -186,22 +185,12 @@ class TrackingTask:
         clip does not start again (a stop and a new RUNNING run that policy)."""
         self.handed_over |= np.asarray(envs, dtype=bool)
 
-    def _locate(self, runtime) -> None:
-        """The base's planar position and heading into :attr:`travel`: the plant's truth, or
-        the estimate (its world velocity summed, its yaw: both drift)."""
-        if self.truth is not None:
-            base = self.truth()
-            self.travel.update(base[:, :2], yaw_of(base[:, 3:7]), self.dt)
-            return
-        b = runtime.state.base
-        self.dead_reckoned += b.linear_velocity_world[:, :2] * self.dt
-        self.travel.update(self.dead_reckoned, yaw_of(b.orientation), self.dt)
-
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick (module docstring): judge the tick that ran, then write the next one's."""
         self.velocity(runtime, truth)
         self._clock_now = runtime.time
-        self._locate(runtime)
+        truth = None if self.truth is None else self.truth()
+        self.travel.locate(truth, runtime.state.base, self.dt)
         running = runtime.mode == RUNNING
         clock = self.motion
         playing = ~np.isnan(clock.time)
@@ -446,16 +435,8 @@ class TrackingTask:
         """The base's travel against the clip's root path now, per env
         (:meth:`ClipTravel.figures <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`:
         ``envs``), the bounds, what judged it and ``off_path``: the envs beyond a bound."""
-        envs = [self.travel.figures(e) for e in range(self.envs)]
         return {
-            "envs": envs,
-            "off_path_m": OFF_PATH_M,
-            "after_clip_m": AFTER_CLIP_M,
-            "judged_on": (
-                "plant truth" if self.truth is not None
-                else "estimate (its world velocity summed, its yaw: both drift)"
-            ),
-            "off_path": [e for e, f in enumerate(envs) if f is not None and f["off_path"]],
+            **self.travel.summary(self.truth is not None),
             "after_clip_interventions": int(self.after_counts[:, 0].sum()),
             "after_clip_hard_limit_ticks": int(self.after_counts[:, 1].sum()),
             "after_clip_violation_ticks": int(self.after_counts[:, 2].sum()),
@@ -500,17 +481,17 @@ class TrackingFigures:
     ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
     (envs, 12): the play under way's sums (squared joint error, ticks, interventions, safety
     interventions, anchor error, MPJPE, the rest's interventions and safety interventions, the
-    play's hard-limit and any-violation ticks, the rest's), ``dead_reckoned`` (envs, 2) m,
-    ``handed_over`` (envs,) and ``after_counts`` (envs, 3) (the task's), ``seen`` (envs, 2): the
-    intervention counts at the last tick, ``vseen`` (envs, 2): the violation monitor's
-    hard-limit and any-violation ticks at the last tick, ``peak`` (envs, n) degC: the play's hottest
-    windings; ``play_log``: JSON text of the envs' ended plays (:attr:`TrackingTask.play_log`);
-    ``clock_now``: s, the runtime's time at the last tick (the batch's).
+    play's hard-limit and any-violation ticks, the rest's), ``handed_over`` (envs,) and
+    ``after_counts`` (envs, 3) (the task's), ``seen`` (envs, 2): the intervention counts at the
+    last tick, ``vseen`` (envs, 2): the violation monitor's hard-limit and any-violation ticks
+    at the last tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON
+    text of the envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the
+    runtime's time at the last tick (the batch's).
     """
 
     ARRAYS = (
         "progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited",
-        "heading", "dead_reckoned", "handed_over", "after_counts",
+        "heading", "handed_over", "after_counts",
     )  # fmt: skip
     PRIVATE = {"play": "_play", "seen": "_seen", "vseen": "_vseen", "peak": "_peak"}
 

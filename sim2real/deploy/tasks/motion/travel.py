@@ -57,10 +57,13 @@ class ClipTravel:
             the world's (the base's heading at the start less the clip root's first).
         end: (envs, 3) ``x, y, yaw`` where this play's clip ended (NaN: not yet).
         after_max: (envs,) m, the farthest from ``end`` since. after_s: (envs,) s after the end.
-        reached: (envs,) s of the clip reached in this play.
+        reached: (envs,) s of the clip reached in this play. dead_reckoned: (envs, 2) m, without
+        a truth: the base estimate's world velocity summed.
     """
 
-    FIELDS = ("pos", "yaw", "start", "turn", "end", "after_max", "after_s", "reached")
+    FIELDS = (
+        "pos", "yaw", "start", "turn", "end", "after_max", "after_s", "reached", "dead_reckoned",
+    )  # fmt: skip
 
     def __init__(self, clock, envs: int):
         clip = clock.clip
@@ -75,6 +78,7 @@ class ClipTravel:
         self.after_max = np.zeros(envs)
         self.after_s = np.zeros(envs)
         self.reached = np.zeros(envs)
+        self.dead_reckoned = np.zeros((envs, 2))
 
     def _root(self, t: float) -> tuple[np.ndarray, float]:
         """The clip's root ``(xy (2,) m, unwrapped yaw rad)`` at clip time ``t`` s."""
@@ -98,6 +102,33 @@ class ClipTravel:
             self.after_s[over] += dt
             far = np.linalg.norm(self.pos[over] - self.end[over, :2], axis=1)
             self.after_max[over] = np.maximum(self.after_max[over], far)
+
+    def locate(self, truth: np.ndarray | None, base, dt: float) -> None:
+        """:meth:`update` from the plant's true base state ``truth`` (envs, 13: position,
+        quaternion ``w x y z``, ...), or without one from the base estimate ``base`` (a
+        :class:`~sim2real.deploy.core.state.BaseState`: its world velocity summed over ``dt`` s,
+        its yaw; both drift)."""
+        if truth is not None:
+            self.update(truth[:, :2], yaw_of(truth[:, 3:7]), dt)
+            return
+        self.dead_reckoned += base.linear_velocity_world[:, :2] * dt
+        self.update(self.dead_reckoned, yaw_of(base.orientation), dt)
+
+    def summary(self, truth: bool) -> dict:
+        """Every env's :meth:`figures` (``envs``), the bounds (``off_path_m``,
+        ``after_clip_m``), what judged them (``judged_on``: the plant's ``truth`` or the
+        estimate) and ``off_path``: the envs beyond a bound."""
+        envs = [self.figures(e) for e in range(self.envs)]
+        return {
+            "envs": envs,
+            "off_path_m": OFF_PATH_M,
+            "after_clip_m": AFTER_CLIP_M,
+            "judged_on": (
+                "plant truth" if truth
+                else "estimate (its world velocity summed, its yaw: both drift)"
+            ),
+            "off_path": [e for e, f in enumerate(envs) if f is not None and f["off_path"]],
+        }  # fmt: skip
 
     def begin(self, envs: np.ndarray) -> None:
         """A clip starts for the envs of ``envs`` (bool): its root path is laid from here."""

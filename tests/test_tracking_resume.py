@@ -87,7 +87,8 @@ def test_a_session_ending_mid_clip_logs_that_clip_unfinished(go2, go2_onnx, tmp_
     """A soak session whose end falls inside a clip: its exhibition's clips end with that play,
     ``unfinished``, the share of the clip reached and its ticks judged (it was not logged at
     all); the heat report counts it neither completed nor a fall; asking changes no state. In
-    the rest between clips there is no open play."""
+    the rest between clips the open play is the clip whose rest it is, whole, its rest cut
+    short (a play is logged with its rest, at the next clip's start)."""
     from types import SimpleNamespace
 
     from sim2real.eval.soak.exhibition import heat_report
@@ -120,7 +121,10 @@ def test_a_session_ending_mid_clip_logs_that_clip_unfinished(go2, go2_onnx, tmp_
     assert f"completed {len(logged)}, falls 0, the last cut short by the session's end" in line
     while not clock.time[0] > clock.total:  # the rest after the clip and its transition
         _run(rig, 1)
-    assert task.open_play(0) is None and task.plays(0) == task.play_log[0]
+    rest = task.open_play(0)
+    assert rest["rest_cut_short"] and rest["completed"] == 1.0 and "unfinished" not in rest
+    assert task.plays(0) == [*task.play_log[0], rest]
+    assert heat_report(task.plays(0))["completed"] == len(task.play_log[0]) + 1
 
 
 @pytest.fixture(scope="module")

@@ -14,6 +14,9 @@ end is :mod:`sim2real.deploy.cli.run_summary`'s.
       that does not come up (port, missing servo, wrong model number, calibration); a Unitree
       robot that does not come up (no LowState, a high-level mode active, a ramp not followed)
 4     the simulation diverged (MuJoCo reported a bad state)
+5     a clip run whose base left its spot: it ends more than 0.5 m from where the clip's root
+      path ends, or went more than 0.5 m after the clip
+      (:mod:`sim2real.deploy.tasks.motion.travel`)
 ====  =====================================================================================
 
 Backends (``--backend``): ``sim`` (the MuJoCo plant, simulated or wall clock, many envs, fault
@@ -43,6 +46,7 @@ from sim2real.deploy.backends.registry import make_backend
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
 from sim2real.deploy.cli.run_operator import (
+    after_clip_policy,
     load_policies,
     open_operator_source,
     operator_hook,
@@ -56,6 +60,7 @@ from sim2real.deploy.spec.drive import drive_robot
 from sim2real.robots.files import atomic_write
 
 EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
+EXIT_LEFT_SPOT = 5
 
 
 def run(args) -> int:
@@ -87,10 +92,16 @@ def run(args) -> int:
     faults = [Fault.parse(s) for s in args.inject]
     fixed = _fixed_goal(args.goal)
     check_options(args, robot)  # --command, --size, --fps: read once the rig is built
+    after = after_clip_policy(args, policies, policy)  # (name, policy) or None
+    playback = args.motion_playback or ("once" if after else "stand")
     motion = motion_for(
-        policy, robot, args.envs, args.motion, args.motion_playback, args.motion_fps,
-        args.motion_stand_s,
+        policy, robot, args.envs, args.motion, playback, args.motion_fps, args.motion_stand_s,
     )  # fmt: skip  # a tracking policy's clip (ClipError: a ValueError, exit 3)
+    if after is not None and motion is None:
+        raise ValueError(
+            f"--after-clip {after[0]}: the first --policy plays no clip (a motion-tracking "
+            "policy's observation reads one)"
+        )
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
@@ -110,7 +121,7 @@ def run(args) -> int:
         clock = SimClock(robot.control_period)
     # the rig (its compiled stages, warmed) before the bring-up (in _run_rig): a robot brought
     # up holds at home, and what plays on its clock (a scripted remote) waits on no compile
-    rig = build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion)
+    rig = build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion, after)
     try:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
@@ -208,7 +219,9 @@ def realtime_options(args, realtime: bool):
     return wait, request
 
 
-def build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion=None):
+def build_rig(
+    args, robot, policies, backend, injector, clock, fixed, mapping, motion=None, after=None
+):
     """The run's :class:`~sim2real.deploy.rig.rig.Rig` on the first of ``policies``: the runtime
     (telemetry, overrun limit), the task of the options, the motion figures, the hooks the
     options switch on, the operator (``--operator``'s ``mapping``, after them) and, on hardware
@@ -248,6 +261,10 @@ def build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, m
         phase = motion_phase_hook(rig)  # a phase-clocked policy: its motion's figures
         if phase is not None:
             rig.add(phase)
+        if after is not None:  # the hand-over at the clip's end
+            from sim2real.deploy.rig.after_clip import AfterClipHook
+
+            rig.add(AfterClipHook(rig, after[1], after[0], args.after_clip_blend))
         for entry in registered_hooks().values():  # --ros2, --print-joints, --video, ...
             hook = entry.build(args, rig)
             if hook is not None:
@@ -424,6 +441,8 @@ def exit_code(report: dict, rig) -> int:
     ]
     if any(stopped) or rig.true_falls():
         return EXIT_FAULT
+    if ((report.get("tracking") or {}).get("travel") or {}).get("off_path"):
+        return EXIT_LEFT_SPOT  # a dance that left its spot: a finding, never a success
     return EXIT_CLEAN
 
 

@@ -1,6 +1,7 @@
 """deploy-run's several policies and its operator: ``--policy [NAME=]FILE`` (repeated; a file
 without a name is named by its stem), ``--operator MAPPING`` and ``--operator-source SOURCE``
-(:mod:`sim2real.deploy.operator`).
+(:mod:`sim2real.deploy.operator`), and the policy a clip run hands over to at the clip's end
+(``--after-clip``: :func:`after_clip_policy`, :mod:`sim2real.deploy.rig.after_clip`).
 
 Every policy of a run must fit the robot (its contract, :meth:`PolicySpec.check_robot`) and drive
 it the same way: the same control mode, and where a policy records its drive (PD gains, default
@@ -171,3 +172,44 @@ def operator_hook(args, rig, policies: dict, mapping, source):
             file=sys.stderr,
         )
     return OperatorHook(rig, machine, args.operator)
+
+
+def after_clip_policy(args, policies: dict, first) -> tuple[str, object] | None:
+    """The policy a clip run hands the robot to at the clip's end (``--after-clip NAME``;
+    without it, the run's second ``--policy`` when there is no ``--operator``), as ``(name,
+    policy)``; None: the clip's end is a hold (``--motion-playback``), judged.
+
+    Raises:
+        ValueError: a name no ``--policy`` gives, the first policy named, ``--operator`` or
+            ``--motion-playback`` given too, ``--envs`` other than 1, a negative
+            ``--after-clip-blend``.
+    """
+    name = args.after_clip
+    if name is None:
+        from sim2real.deploy.tasks.motion.source import reads_motion
+
+        if getattr(args, "operator", None) or len(policies) < 2 or not reads_motion(first.spec):
+            return None
+        name = list(policies)[1]
+    if getattr(args, "operator", None):
+        raise ValueError(
+            f"--after-clip {name} and --operator: the operator's buttons switch the policies; "
+            "give one of them"
+        )
+    if name not in policies or policies[name] is first:
+        raise ValueError(
+            f"--after-clip {name}: expected the NAME of a --policy NAME=FILE after the first "
+            f"(the run's: {list(policies)})"
+        )
+    if args.envs != 1:
+        raise ValueError(
+            f"--after-clip {name}: a hand-over drives one robot: --envs must be 1, got {args.envs}"
+        )
+    if args.motion_playback is not None:
+        raise ValueError(
+            f"--motion-playback {args.motion_playback} and a hand-over to '{name}' at the "
+            "clip's end: give one of them"
+        )
+    if not args.after_clip_blend >= 0.0:
+        raise ValueError(f"--after-clip-blend {args.after_clip_blend}: expected s >= 0")
+    return name, policies[name]

@@ -189,10 +189,27 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--motion-playback",
         choices=("stand", "once", "loop", "hold"),
-        default="stand",
-        help="at the clip's end: a transition to the home pose the policy tracks, then home "
-        "(stand, holosoma's default_pose_append), hold its last frame (once, hold) or start it "
-        "again (loop)",
+        default=None,
+        help="at the clip's end, without a policy to hand over to (--after-clip): a transition "
+        "to the home pose the policy tracks, then home (stand, the default: holosoma's "
+        "default_pose_append), hold its last frame (once, hold) or start it again (loop); a "
+        "hold is judged (the base's travel after the clip)",
+    )
+    p.add_argument(
+        "--after-clip",
+        default=None,
+        metavar="NAME",
+        help="hand the robot to the policy --policy NAME=FILE at the clip's end, as rl_sar's "
+        "fsm hands its dance to its locomotion policy (default: a clip run's second --policy, "
+        "without --operator); one robot (--envs 1)",
+    )
+    p.add_argument(
+        "--after-clip-blend",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="s the hand-over of --after-clip blends the targets over (default 0: at once, as "
+        "rl_sar's)",
     )
     p.add_argument(
         "--motion-stand-s",

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 
+from sim2real.deploy.cli.clip_summary import print_tracking
+
 #: deg of heading change the commands did not ask for past which the summary flags a drift (our
 #: choice: a straight 20 s walk that turns 30 deg ends 5 m off a 10 m line).
 HEADING_DRIFT_DEG = 30.0
@@ -48,14 +50,16 @@ def _print_task(r: dict) -> None:
             f"  goals reached     {g['reached']}/{g['issued']} within {g['within_s']:.1f} s "
             f"({rate})"
         )
-    if loco is not None:
+    # a clip (or a phase-clocked dance's motion) commands the policy: no velocity lines
+    clip = r.get("tracking") is not None or r.get("motion_phase") is not None
+    if loco is not None and not clip:
         _print_walk(loco)
-    if loco is not None and loco.get("heading_change_deg") is not None:
+    if loco is not None and not clip and loco.get("heading_change_deg") is not None:
         _print_heading(loco)
     if r.get("tracking") is not None:
         v = r.get("violations") or {}
         excused = {"ticks": v.get("reference_contact_ticks", 0)}
-        _print_tracking(r["tracking"], loco, excused)
+        print_tracking(r["tracking"], loco, excused)
     if r.get("motion_phase") is not None:
         _print_motion_phase(r["motion_phase"], loco)
     if loco is not None and loco.get("true_falls", 0) > loco.get("runtime_falls", 0):
@@ -74,61 +78,6 @@ def _print_motion_phase(p: dict, loco: dict | None) -> None:
         f"{100 * p['completed']:.1f} % completed, {p['stopped']} cut short by a stop; joint "
         f"error against the policy's targets {rms} over {p['ticks']} ticks; falls in the run {falls}"
     )
-
-
-def _print_tracking(t: dict, loco: dict | None, excused: dict | None = None) -> None:
-    """Print the motion tracking: the clip, its share completed, joint and anchor errors, falls."""
-    print(
-        f"  motion clip       {t['clip']}: {t['frames']} frames at {t['fps']:g} Hz "
-        f"({t['length_s']:.2f} s, {t['playback']}), played {t['plays']}x, "
-        f"{100 * t['completed']:.1f} % completed"
-    )
-    if t["ticks"]:
-        groups = ", ".join(f"{g} {v:.3f}" for g, v in t["joint_rms_rad"].items())
-        print(
-            f"  joint error       {t['joint_rms_rad_all']:.3f} rad RMS ({groups}) over "
-            f"{t['ticks']} ticks ({t['judged_on']})"
-        )
-        print(
-            f"  anchor error      {t['anchor_error_deg_mean']:.2f} deg mean, "
-            f"{t['anchor_error_deg_max']:.2f} deg max (torso orientation); MPJPE "
-            f"{t['mpjpe_mm']:.1f} mm ({t['bodies']} bodies, root-relative)"
-        )
-    if t.get("stand_s") is not None and t.get("end_from_home_rad_rms") is not None:
-        print(
-            f"  stand             after the clip, to home over {t['stand_s']:g} s; ends "
-            f"{t['end_from_home_rad_rms']['all']:.3f} rad RMS from home ("
-            + ", ".join(f"{g} {v:.3f}" for g, v in t["end_from_home_rad_rms"].items() if g != "all")
-            + ")"
-        )
-    plays = t.get("plays_logged") or []
-    if plays:
-        per = ", ".join(f"{p['interventions']} ({p['safety_interventions']})" for p in plays[:8])
-        more = f", ... ({len(plays)} plays)" if len(plays) > 8 else ""
-        print(f"  guard per play    intervention ticks (of them safety): {per}{more}")
-    _print_reference_contacts(t.get("reference_contacts"), excused)
-    if loco is not None:
-        print(f"  falls             {loco['falls']}")
-
-
-def _print_reference_contacts(c: dict | None, excused: dict | None) -> None:
-    """Print the clip's own self-contacts (the reference posed in the robot's collision model)
-    and the self-collision ticks counted apart as its contacts."""
-    if not c or not c["frames_touching"]:
-        return
-    pairs = ", ".join(f"{k} {n}" for k, n in list(c["pairs"].items())[:4])
-    print(
-        f"  clip self-contact {c['frames_touching']} of {c['frames']} reference frames (the clip, "
-        f"then its transition to home) touch in "
-        f"the robot's collision model (worst {1000 * c['worst_depth_m']:.0f} mm deep; {pairs}): "
-        "the description's collision geometry (a convex hull of a concave mesh, say) under "
-        "the clip, not the policy's doing"
-    )
-    if excused:
-        print(
-            f"  reference contact {excused['ticks']} self-collision ticks on pairs the clip "
-            f"itself touches then (+-{c['window_s']:g} s): counted apart, not violations"
-        )
 
 
 def _print_walk(loco: dict) -> None:

@@ -120,6 +120,9 @@ class Rig:
         excuse = getattr(self.task, "reference_contacts", None)  # a clip's own self-contacts
         if excuse is not None and self.violations is not None:
             self.violations.excuse_contacts(excuse)
+        watch = getattr(self.task, "watch_violations", None)  # a clip's plays count them
+        if watch is not None and self.violations is not None:
+            watch(self.violations)
         if reset_task and self.task is not None:
             self.task.reset(self.runtime, np.ones(envs, dtype=bool))
         self.hooks: list[RunHook] = []

@@ -83,8 +83,29 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             not result["diverged"],
             f"simulation diverged: {result['diverged']}" if result["diverged"] else "no divergence",
         ),
+        "on_spot": _on_spot_check(result),
     }
     return {k: {"passed": bool(p), "message": m} for k, (p, m) in checks.items()}
+
+
+def _on_spot_check(result: dict) -> tuple[bool, str]:
+    """``on_spot``: an exhibition's base stays where its clips take it: no clip ends, and no
+    rest goes, past the bounds of :mod:`sim2real.deploy.tasks.motion.travel` (0.5 m); a session
+    no clip commands passes."""
+    x = (result.get("exhibition") or {}).get("clips_and_rests")
+    if x is None:
+        return True, "no motion clip: not judged"
+    clips, rests, off = x["clips"], x["rests"], x["left_spot"]
+    worst = clips["worst_end_offset_m"]
+    text = (
+        f"clips: travel {clips['travel_m']:.2f} m, the worst ended "
+        + (f"{worst:.2f} m" if worst is not None else "n/a")
+        + f" from its root path's end; rests: {rests['count']}, travel {rests['travel_m']:.2f} m"
+        + (f" (the worst {rests['worst_travel_m']:.2f} m)" if rests["count"] else "")
+    )
+    if off:
+        return False, f"left its spot in plays {off[:10]}: {text}"
+    return True, text
 
 
 def _hard_limit_check(result: dict) -> tuple[bool, str]:

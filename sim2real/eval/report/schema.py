@@ -26,6 +26,7 @@ CHECKS = (
     "interventions",
     "no_divergence",
     "falls",
+    "on_spot",
 )
 
 

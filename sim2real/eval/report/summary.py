@@ -268,7 +268,9 @@ def exhibition_lines(s: dict) -> list[str]:
     lines = [
         f"  exhibition   {s['id']}: {h['clips']} clips of {x['clip_s']:.1f} s (then "
         f"{x['stand_s']:g} s to home, {x['rest_s']:g} s standing); completed {h['completed']}, "
-        f"falls {h['falls']}{cut}; per clip: joint error {spread('joint_rms_rad', '.3f', 'rad RMS')}, "
+        f"falls {h['falls']}"
+        + (f" ({h['rest_falls']} in the rests after their clips)" if h.get("rest_falls") else "")
+        + f"{cut}; per clip: joint error {spread('joint_rms_rad', '.3f', 'rad RMS')}, "
         f"anchor error {spread('anchor_error_deg_mean', '.1f', 'deg mean')}, MPJPE "
         f"{spread('mpjpe_mm', '.1f', 'mm')}, guard interventions "
         f"{min(iv, default=0)}-{max(iv, default=0)} ticks"
@@ -287,6 +289,21 @@ def exhibition_lines(s: dict) -> list[str]:
         lines.append(
             f"  heat         no winding reached derating in {h['clips']} clips (hottest degC: "
             f"{hot or 'n/a'})"
+        )
+    cr = x.get("clips_and_rests")
+    if cr:
+        clips, rests = cr["clips"], cr["rests"]
+        worst = clips["worst_end_offset_m"]
+        lines.append(
+            f"  clips/rests  clips: base travel {clips['travel_m']:.2f} m, the worst ended "
+            + (f"{worst:.2f} m" if worst is not None else "n/a")
+            + f" from its root path's end, guard interventions {clips['interventions']} ticks, "
+            f"hard limit {clips.get('hard_limit_ticks', 0)}; "
+            f"rests ({rests['count']}): travel {rests['travel_m']:.2f} m"
+            + (f" (worst {rests['worst_travel_m']:.2f} m)" if rests["count"] else "")
+            + f", guard interventions {rests['interventions']} ticks, hard limit "
+            f"{rests.get('hard_limit_ticks', 0)}"
+            + (f"; LEFT ITS SPOT in plays {cr['left_spot'][:10]}" if cr["left_spot"] else "")
         )
     c = x["reference_contacts"]
     if c["frames_touching"]:

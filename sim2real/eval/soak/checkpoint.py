@@ -83,6 +83,10 @@ FORMAT = "soak-checkpoint"
 #: 18: the base orientation the IMU's own attitude gives (``state/sensed_orientation``, a
 #: tracking policy's anchor) and the simulated IMU's heading drift (``backend/imu/heading_*``);
 #: a version 17 checkpoint has neither.
+#: 18 (also): a motion-tracking session's base travel against its clip's root path (``travel/...``,
+#: with the estimate's summed velocity ``travel/dead_reckoned``), its hand-over and after-clip
+#: ticks (``figures/handed_over``, ``after_counts``, ``vseen``) and each play's rest
+#: interventions and violations (``figures/play`` (envs, 12)); a version 17 checkpoint has none.
 VERSION = 18
 MANIFEST = "checkpoint.json"
 

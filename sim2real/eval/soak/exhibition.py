@@ -39,12 +39,60 @@ def check_exhibition(policy, robot, config) -> None:
     exhibition_task({}, policy, robot, 1, config)
 
 
+def clips_and_rests(plays: list[dict]) -> dict:
+    """The clips of a session's ``plays`` apart from the rests between them (the tracking task's
+    play log: each play's ``travel`` against its clip's root path,
+    :meth:`~sim2real.deploy.tasks.motion.travel.ClipTravel.figures`, and its guard
+    interventions): a rest is what follows a clip until the next starts (its transition to home
+    and its standing), a hold judged as ``deploy-run`` judges one.
+
+    Returns:
+        ``clips``: ``travel_m`` (the base's over every clip, summed), ``worst_end_offset_m``
+        (the farthest a clip ended from its root path's end), ``interventions``,
+        ``hard_limit_ticks`` and ``violation_ticks`` (true state: ticks past a hard limit, ticks
+        with any violation); ``rests``: ``count``, ``travel_m`` (summed: each rest's from where
+        its clip ended), ``worst_travel_m`` (the farthest a rest went), ``interventions``,
+        ``hard_limit_ticks``, ``violation_ticks`` (the rests' ticks; the transition counts with
+        its clip); ``left_spot``: the 1-based plays
+        whose base left its spot (:data:`~sim2real.deploy.tasks.motion.travel.OFF_PATH_M`).
+    """
+    travel = [(i, p["travel"]) for i, p in enumerate(plays, start=1) if p.get("travel")]
+    rests = [(i, f) for i, f in travel if f["after_clip_s"] is not None]
+
+    def total(rows, key):
+        return float(sum(f[key] for _, f in rows if f[key] is not None))
+
+    return {
+        "clips": {
+            "travel_m": total(travel, "base_travel_m"),
+            "worst_end_offset_m": max(
+                (f["clip_end_offset_m"] for _, f in travel if f["clip_end_offset_m"] is not None),
+                default=None,
+            ),
+            "interventions": int(sum(p.get("interventions", 0) for p in plays)),
+            "hard_limit_ticks": int(sum(p.get("hard_limit_ticks", 0) for p in plays)),
+            "violation_ticks": int(sum(p.get("violation_ticks", 0) for p in plays)),
+        },
+        "rests": {
+            "count": len(rests),
+            "travel_m": total(rests, "after_clip_travel_m"),
+            "worst_travel_m": max((f["after_clip_max_m"] for _, f in rests), default=None),
+            "interventions": int(sum(p.get("rest_interventions", 0) for p in plays)),
+            "hard_limit_ticks": int(sum(p.get("rest_hard_limit_ticks", 0) for p in plays)),
+            "violation_ticks": int(sum(p.get("rest_violation_ticks", 0) for p in plays)),
+        },
+        "left_spot": [i for i, f in travel if f["off_path"]],
+    }
+
+
 def heat_report(plays: list[dict]) -> dict:
     """The heat report of one session's ``plays`` (the tracking task's play log, in order).
 
     Returns:
-        ``clips`` (played), ``completed`` (not ended by a stop nor cut short), ``falls`` (plays
-        a stop ended), ``unfinished`` (the play the session's end cut short: 0 or 1),
+        ``clips`` (played), ``completed`` (its clip played to the end: not ended by a stop
+        during the clip nor cut short), ``falls`` (plays a stop ended, the clip or its rest),
+        ``rest_falls`` (of them, those whose stop came in the rest after the clip),
+        ``unfinished`` (the play the session's end cut short: 0 or 1),
         ``derating`` {winding: the 1-based clip in which it first passed its derating start},
         ``first_derated_clip`` (or None), ``joint_rms_rad_before`` / ``joint_rms_rad_derated``
         (mean over the clips before the first derated one / from it on; None without such
@@ -67,8 +115,13 @@ def heat_report(plays: list[dict]) -> dict:
     top = sorted(hottest.items(), key=lambda kv: -kv[1])[:5]
     return {
         "clips": len(plays),
-        "completed": sum(1 for p in plays if not (p["stopped"] or p.get("unfinished"))),
+        "completed": sum(
+            1
+            for p in plays
+            if not p.get("unfinished") and (not p["stopped"] or p.get("stopped_in_rest"))
+        ),
         "falls": sum(1 for p in plays if p["stopped"]),
+        "rest_falls": sum(1 for p in plays if p.get("stopped_in_rest")),
         "unfinished": sum(1 for p in plays if p.get("unfinished")),
         "derating": dict(sorted(first.items(), key=lambda kv: kv[1])),
         "first_derated_clip": start,

@@ -132,7 +132,7 @@ def exhibition_result(session: Session) -> dict:
     """The ``exhibition`` section of a motion-tracking session: its clips
     (:attr:`sim2real.deploy.tasks.motion.tracking.TrackingTask.play_log`) and the heat report
     (:func:`sim2real.eval.soak.exhibition.heat_report`)."""
-    from sim2real.eval.soak.exhibition import heat_report
+    from sim2real.eval.soak.exhibition import clips_and_rests, heat_report
 
     task, e = session.task, session.e
     plays = task.plays(e)  # with the clip the session's end cut short (unfinished)
@@ -145,6 +145,7 @@ def exhibition_result(session: Session) -> dict:
         "reference_contacts": task.contacts.summary(),
         "reference_contact_ticks": int(session.batch.violations.reference_ticks[e]),
         "heat": heat_report(plays),
+        "clips_and_rests": clips_and_rests(plays),
     }
 
 

@@ -45,6 +45,7 @@ from sim2real.deploy.spec.motion_blocks import (
 )
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
+from sim2real.deploy.tasks.motion.travel import ClipTravel
 from sim2real.deploy.tasks.velocity import VelocityTask
 
 #: Body groups of the joint-angle error, by a word of the joint's name (the first that matches).
@@ -86,8 +87,14 @@ class TrackingTask:
             ``stopped`` (a stop ended it), ``joint_rms_rad``, ``anchor_error_deg_mean``,
             ``mpjpe_mm`` (None for a play with no judged tick), ``ticks``, ``interventions`` and
             ``safety_interventions`` (ticks, while the clip and its transition played),
-            ``end_s`` and its heat (``hottest``, ``hottest_c``, ``derating``). A play the
-            run's end cut short is no entry of it: :meth:`plays` adds it (``unfinished``).
+            ``rest_interventions`` and ``rest_safety_interventions`` (after them, until the play
+            was logged: an exhibition's rest), ``hard_limit_ticks`` and ``violation_ticks``
+            (true state, the rig's monitor: :meth:`watch_violations`; 0 without it) and the
+            rest's ``rest_hard_limit_ticks``, ``rest_violation_ticks``, ``travel`` (the base
+            against the clip's root path: :meth:`ClipTravel.figures
+            <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`), ``end_s`` and its heat
+            (``hottest``, ``hottest_c``, ``derating``). A play the run's end cut short is no
+            entry of it: :meth:`plays` adds it (``unfinished``).
     """
 
     name = "tracking"
@@ -105,8 +112,15 @@ class TrackingTask:
         self.contacts = clip_self_contacts(robot, clock.reference_poses(), clock.clip.fps)
         self.play_log: list[list[dict]] = [[] for _ in range(envs)]
         self._clock_now = 0.0  # s, the runtime's time at the last tick
-        self._play = np.zeros((envs, 6))  # this play's sq error, ticks, any, safety, anchor, mpjpe
+        # this play's sq error, ticks, any, safety, anchor, mpjpe; the rest's any, safety; the
+        # play's true-state hard-limit and any-violation ticks, then the rest's
+        self._play = np.zeros((envs, 12))
         self._seen = np.zeros((envs, 2), dtype=np.int64)  # interventions any, safety last tick
+        self._vseen = np.zeros((envs, 2), dtype=np.int64)  # violations hard_limit, any last tick
+        self.violations = None  # the rig's true-state violation monitor (watch_violations)
+        #: (envs, 3) after the clip's end (its hold, or the policy handed over to), RUNNING:
+        #: guard intervention ticks, true-state hard-limit ticks, ticks with any violation
+        self.after_counts = np.zeros((envs, 3), dtype=np.int64)
         self._thermal = getattr(backend, "thermal", None)
         self._peak = np.full((envs, robot.n_joints), -np.inf)  # this play's winding peak, degC
         self._derate = np.array([m.derating_start_temperature for m in robot.motors])
@@ -124,6 +138,12 @@ class TrackingTask:
         self.ticks = np.zeros(envs, dtype=np.int64)
         self.mpjpe_sum = np.zeros(envs)
         self.heading = np.zeros(envs)
+        self.travel = ClipTravel(clock, envs)
+        #: (envs,) bool: the clip is over and the robot handed to another policy
+        #: (:meth:`hand_over`): the clip does not start again
+        self.handed_over = np.zeros(envs, dtype=bool)
+        #: what follows the clip, as the run decided it (:meth:`follows`)
+        self.after: dict = {"follows": clock.playback}
         import pinocchio as pin
 
         model = robot.pin_model
@@ -164,24 +184,38 @@ class TrackingTask:
         turn = yaw_of(self.truth()[e, 3:7]) - yaw_of(anchor_base_orientation(state)[e])
         self.heading[e] = np.angle(np.exp(1j * turn))
 
+    def follows(self, follows: str, policy: str | None = None, blend_s: float = 0.0) -> None:
+        """Say what follows the clip (the summary's): ``handover`` to ``policy`` (blended over
+        ``blend_s`` s), else the playback's hold."""
+        self.after = {"follows": follows, "policy": policy, "blend_s": blend_s}
+
+    def hand_over(self, envs: np.ndarray) -> None:
+        """The envs of ``envs`` (bool) are handed to another policy at their clip's end: their
+        clip does not start again (a stop and a new RUNNING run that policy)."""
+        self.handed_over |= np.asarray(envs, dtype=bool)
+
     def __call__(self, runtime, truth: np.ndarray | None = None) -> None:
         """One tick (module docstring): judge the tick that ran, then write the next one's."""
         self.velocity(runtime, truth)
         self._clock_now = runtime.time
+        truth = None if self.truth is None else self.truth()
+        self.travel.locate(truth, runtime.state.base, self.dt)
         running = runtime.mode == RUNNING
         clock = self.motion
         playing = ~np.isnan(clock.time)
-        first = running & ~playing
+        first = running & ~playing & ~self.handed_over
         if first.any() and self.start_after > 0.0:
             first &= self.waited >= self.start_after - 0.5 * self.dt
             self.waited[running & ~playing] += self.dt
         if first.any():
             clock.start(first)  # this tick read the first frame: it was time 0
+            self.travel.begin(first)
         playing = running & ~np.isnan(clock.time)
         if playing.any():
             clip = playing & (np.nan_to_num(clock.time, nan=np.inf) < clock.length)
             self._judge(runtime, clip)  # the clip, not its last frame held
             clock.advance(self.dt, playing)
+            self.travel.reach(clock.time, playing)
             if clock.restarted.any():  # an exhibition's next play: aligned as at its start
                 state = runtime.state
                 base = anchor_base_orientation(state)
@@ -191,14 +225,19 @@ class TrackingTask:
             np.maximum(self.progress, now, out=self.progress)
             clock.write(self._buffer(runtime), playing)
         with np.errstate(invalid="ignore"):
-            self._count_interventions(playing & (clock.time <= clock.total))
-        ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
-        if clock.playback in ("loop", "exhibition"):
-            ended |= clock.restarted & (self._play[:, 1] > 0)
+            clip = playing & (clock.time <= clock.total)
+            after = running & (clock.time >= clock.length)
+            self._count_interventions(clip, playing & ~clip, after)
+        if clock.playback in ("loop", "exhibition"):  # logged with its rest, at the restart
+            ended = clock.restarted & (self._play[:, 1] > 0)
+        else:
+            ended = playing & (clock.time >= clock.total) & (self._play[:, 1] > 0)
         self._heat(playing)
         stopped = ~running & ~np.isnan(clock.time)
         for e in np.flatnonzero(ended | stopped):
             self._log_play(e, bool(stopped[e]))
+        if clock.restarted.any():  # the next play's root path laid from here
+            self.travel.begin(clock.restarted)
         if stopped.any():
             clock.stop(stopped)
         idle = ~running
@@ -240,14 +279,32 @@ class TrackingTask:
         hot = np.where(playing[:, None], self._thermal.winding_temperature, -np.inf)
         np.maximum(self._peak, hot, out=self._peak)
 
-    def _count_interventions(self, playing: np.ndarray) -> None:
-        """Add the guard's interventions of this tick to each playing env's play."""
-        iv = self.interventions
-        if iv is None:
-            return
-        now = np.stack([iv.any, iv.safety], axis=1)
-        self._play[:, 2:4] += np.where(playing[:, None], now - self._seen, 0)
-        self._seen[:] = now
+    def watch_violations(self, monitor) -> None:
+        """Count ``monitor``'s (a :class:`~sim2real.deploy.monitors.violations.ViolationMonitor`,
+        updated before this task each tick) hard-limit and any-violation ticks per play, the
+        clip's apart from its rest's, and after the clip."""
+        self.violations = monitor
+        self._vseen[:] = np.stack([monitor.counts["hard_limit"], monitor.any], axis=1)
+
+    def _count_interventions(self, playing: np.ndarray, rest: np.ndarray, after) -> None:
+        """Add the guard's interventions and the true-state violations of this tick to each
+        playing env's play (the clip and its transition), or to its rest after them (``rest``),
+        and to the ticks after the clip's end (``after``)."""
+        iv, v = self.interventions, self.violations
+        if iv is not None:
+            now = np.stack([iv.any, iv.safety], axis=1)
+            step = now - self._seen
+            self._play[:, 2:4] += np.where(playing[:, None], step, 0)
+            self._play[:, 6:8] += np.where(rest[:, None], step, 0)
+            self.after_counts[:, 0] += np.where(after, step[:, 0], 0)
+            self._seen[:] = now
+        if v is not None:
+            now = np.stack([v.counts["hard_limit"], v.any], axis=1)
+            step = now - self._vseen
+            self._play[:, 8:10] += np.where(playing[:, None], step, 0)
+            self._play[:, 10:12] += np.where(rest[:, None], step, 0)
+            self.after_counts[:, 1:3] += np.where(after[:, None], step, 0)
+            self._vseen[:] = now
 
     def _log_play(self, e: int, stopped: bool) -> None:
         """Close env ``e``'s play into :attr:`play_log` and start a new one."""
@@ -258,10 +315,15 @@ class TrackingTask:
     def open_play(self, e: int) -> dict | None:
         """Env ``e``'s play still open when the run or session ends (the clip or its transition
         playing, a tick of it judged), as :attr:`play_log` logs a play with ``unfinished``
-        True and ``completed`` the share of the clip reached; None without one. Changes no
+        True and ``completed`` the share of the clip reached; an exhibition's or a loop's play
+        whose clip had ended (its rest under way: such a play is logged at the next start, with
+        its rest) as a whole play with ``rest_cut_short`` True; None without one. Changes no
         state (a checkpoint taken after it resumes the same play)."""
-        if np.isnan(self.motion.time[e]) or self._play[e, 1] <= 0:
+        t = self.motion.time[e]
+        if np.isnan(t) or self._play[e, 1] <= 0:
             return None
+        if t >= self.motion.length:  # only an exhibition or a loop keeps a play open past it
+            return {**self._play_entry(e, False, True), "rest_cut_short": True}
         return {**self._play_entry(e, False, False), "unfinished": True}
 
     def plays(self, e: int) -> list[dict]:
@@ -272,16 +334,22 @@ class TrackingTask:
     def _play_entry(self, e: int, stopped: bool, whole: bool) -> dict:
         """Env ``e``'s play so far as :attr:`play_log` logs it; ``whole``: its clip played to
         the end (``completed`` 1), else the share its clock reached."""
-        sq, ticks, any_, safety, anchor, mpjpe = self._play[e]
+        sq, ticks, any_, safety, anchor, mpjpe, rest_any, rest_safety = self._play[e, :8]
+        hard, viol, rest_hard, rest_viol = (int(x) for x in self._play[e, 8:])
         t = self.motion.time[e]
         done = 1.0 if whole else min(float(np.nan_to_num(t)) / self.motion.length, 1.0)
         return {
             "completed": done, "stopped": stopped,
+            "stopped_in_rest": bool(stopped and np.nan_to_num(t) >= self.motion.length),
             "joint_rms_rad": float(np.sqrt(sq / (ticks * self.robot.n_joints))) if ticks else None,
             "anchor_error_deg_mean": float(anchor / ticks) if ticks else None,
             "mpjpe_mm": float(mpjpe / ticks) if ticks else None,
             "ticks": int(ticks), "interventions": int(any_), "safety_interventions": int(safety),
+            "rest_interventions": int(rest_any), "rest_safety_interventions": int(rest_safety),
+            "hard_limit_ticks": hard, "violation_ticks": viol,
+            "rest_hard_limit_ticks": rest_hard, "rest_violation_ticks": rest_viol,
             "end_s": float(self._clock_now), **self._play_heat(e),
+            "travel": self.travel.figures(e),
         }  # fmt: skip
 
     def _play_heat(self, e: int) -> dict:
@@ -369,7 +437,20 @@ class TrackingTask:
             "end_from_home_rad_rms": self._from_home(),
             "reference_contacts": self.contacts.summary(),
             "plays_logged": [p for e in range(self.envs) for p in self.plays(e)],
+            "after_clip": dict(self.after),
+            "travel": self.travel_summary(),
         }
+
+    def travel_summary(self) -> dict:
+        """The base's travel against the clip's root path now, per env
+        (:meth:`ClipTravel.figures <sim2real.deploy.tasks.motion.travel.ClipTravel.figures>`:
+        ``envs``), the bounds, what judged it and ``off_path``: the envs beyond a bound."""
+        return {
+            **self.travel.summary(self.truth is not None),
+            "after_clip_interventions": int(self.after_counts[:, 0].sum()),
+            "after_clip_hard_limit_ticks": int(self.after_counts[:, 1].sum()),
+            "after_clip_violation_ticks": int(self.after_counts[:, 2].sum()),
+        }  # fmt: skip
 
     def report(self, runtime) -> dict:
         report = self.velocity.report(runtime)
@@ -385,7 +466,10 @@ class TrackingTask:
     def parts(self) -> dict:
         """The stateful parts: the clip's clock, the judged figures and play log
         (:class:`TrackingFigures`), the velocity task's (its falls)."""
-        return {"motion": self.motion, "figures": TrackingFigures(self), **self.velocity.parts()}
+        return {
+            "motion": self.motion, "figures": TrackingFigures(self), "travel": self.travel,
+            **self.velocity.parts(),
+        }  # fmt: skip
 
     def state_dict(self, env: int | None = None) -> dict:
         from sim2real.deploy.core.stateful import parts_state_dict
@@ -405,18 +489,21 @@ class TrackingFigures:
 
     Fields (the env axis kept): ``progress``, ``sq_error``, ``anchor_sum``, ``anchor_max``,
     ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
-    (envs, 6): the play under way's sums (squared joint error, ticks, interventions, safety
-    interventions, anchor error, MPJPE), ``seen`` (envs, 2): the intervention counts at the last
-    tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON text of the
-    envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the runtime's time at
-    the last tick (the batch's).
+    (envs, 12): the play under way's sums (squared joint error, ticks, interventions, safety
+    interventions, anchor error, MPJPE, the rest's interventions and safety interventions, the
+    play's hard-limit and any-violation ticks, the rest's), ``handed_over`` (envs,) and
+    ``after_counts`` (envs, 3) (the task's), ``seen`` (envs, 2): the intervention counts at the
+    last tick, ``vseen`` (envs, 2): the violation monitor's hard-limit and any-violation ticks
+    at the last tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON
+    text of the envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the
+    runtime's time at the last tick (the batch's).
     """
 
     ARRAYS = (
         "progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited",
-        "heading",
+        "heading", "handed_over", "after_counts",
     )  # fmt: skip
-    PRIVATE = {"play": "_play", "seen": "_seen", "peak": "_peak"}
+    PRIVATE = {"play": "_play", "seen": "_seen", "vseen": "_vseen", "peak": "_peak"}
 
     def __init__(self, task: TrackingTask):
         self.task = task

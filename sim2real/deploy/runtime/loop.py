@@ -29,6 +29,7 @@ from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
+from sim2real.deploy.runtime.camera import camera_stage
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
@@ -131,6 +132,8 @@ class Runtime:
         self.goal = np.zeros((envs, 3))
         #: a height_scan policy: its elevation map (stale: a safe stop; else None)
         self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
+        #: a policy with an image input: its camera (stale: a safe stop; else None)
+        self.cameras = camera_stage(self.spec, envs, robot, backend)
         #: the tick's part the kind's base adds (a floating base: kinds.legged_tick) and its
         #: stages: the base estimate (IMU, leg kinematics) and the fall check (None: an arm)
         self.base_tick = kind.tick_stage(self)
@@ -197,7 +200,7 @@ class Runtime:
         self._compiled = self._compile()
         self.state.motion = None  # never a zero clip: the motion task writes the reference
         #: a fixed base on the compiled path: estimate and observe in one call (_estimate_observe)
-        self._fused = self._compiled is not None and self.base_tick.fusable
+        self._fused = self._compiled is not None and self.base_tick.fusable and self.cameras is None
         self._idle = np.zeros(envs, dtype=bool)  # the envs not RUNNING at the tick's end
         self._idle_rows = self._idle[:, None]  # its view over the joints (no index array)
         self._running = np.zeros(envs, dtype=bool)  # the tick's RUNNING envs (follow)
@@ -213,6 +216,8 @@ class Runtime:
         as before its first call; a training episode's reset zeroes it too)."""
         if hasattr(self.policy, "reset"):  # a policy with state (a recurrent one)
             self.policy.reset(envs)
+        if self.cameras is not None:  # the next fresh frame fills the image history
+            self.cameras.reset(envs)
         self.spec.plan.reset_history(envs)
         self.state.last_action[envs] = 0.0
 
@@ -392,6 +397,9 @@ class Runtime:
             state = self.estimator.update(frame, self.state, self._input)
             self.kinematics.update(state)
             self.base_tick.update(frame, state)  # a floating base: IMU, contacts, clock; falls
+            if self.cameras is not None:  # the image input, in the policy's bound array
+                images = getattr(self.policy, "images", {}).get(self.cameras.block.input)
+                self.supervision.safe_stop(self.cameras.update(frame, images), "stale_sensor")
             self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
             st[2] = clock_ns()
             obs = self._observe(state)

@@ -32,6 +32,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from sim2real.deploy.spec.camera import CameraError, DepthImageBlock
 from sim2real.deploy.spec.drive import DriveSpec
 from sim2real.deploy.spec.height_scan import HeightScanPattern
 from sim2real.deploy.spec.history import FILLS, LAYOUTS, ORDERS, ObservationHistory
@@ -305,6 +306,14 @@ class PolicySpecDocument(_Doc):
         default=None,
         description="The frame history the graph reads; left out: the present frame only.",
     )
+    images: list[dict[str, Any]] = Field(
+        default_factory=list,
+        description=(
+            "Depth image inputs of the graph (sim2real/deploy/spec/camera.py DepthImageBlock: "
+            "input, camera, shape, crop, resize, interpolation, near, far, normalisation, "
+            "frames, skip, rate); left out: none."
+        ),
+    )
 
 
 def parse_spec(text: str, source: str = "spec") -> PolicySpec:
@@ -359,6 +368,12 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
         smoothing=a.smoothing or "",
     )
     blocks = [_block(i, b, names, action) for i, b in enumerate(doc.observation)]
+    try:
+        images = tuple(
+            DepthImageBlock.from_dict(d, f"images[{i}]") for i, d in enumerate(doc.images)
+        )
+    except CameraError as exc:
+        raise SpecError(str(exc)) from None
 
     return PolicySpec(
         robot=doc.robot,
@@ -388,6 +403,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
             fill=doc.history.fill,
             lengths=tuple(doc.history.lengths or ()),
         ),
+        images=images,
     )
 
 

@@ -275,3 +275,31 @@ def depth_error(camera: PlantDepthCamera, frames: int, at: float, env: int = 0) 
         "rms_fraction": rms / at,
         "invalid_fraction": invalid / (frames * int(band.sum())),
     }
+
+
+def attach_depth_camera(
+    backend,
+    spec,
+    rate: float | None = None,
+    latency: float = 0.0,
+    noise: DepthNoise | None = None,
+    faults: CameraFaults | None = None,
+    seed: int = 0,
+) -> PlantDepthCamera | None:
+    """For a simulated plant (its ``models``, ``datas``) and a spec with an image block: the
+    plant's camera made the runtime's frame source (``backend.camera_source``,
+    :func:`sim2real.deploy.runtime.camera.camera_stage`) and returned; else None (a backend that
+    is no plant: its own driver writes the frames).
+
+    Raises:
+        CameraError: the robot's MJCF has no camera of the block's name (one line naming the
+            MJCF file and ``images[0].camera``).
+    """
+    images = getattr(spec, "images", ())
+    if not images or not all(hasattr(backend, a) for a in ("models", "datas")):
+        return None
+    robot = getattr(backend, "robot", None)
+    where = f"{getattr(robot, 'mjcf_path', 'MJCF')}: images[0].camera"
+    camera = PlantDepthCamera(backend, images[0], rate, latency, noise, faults, seed, where)
+    backend.camera_source = camera
+    return camera

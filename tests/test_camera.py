@@ -1,0 +1,227 @@
+"""Depth cameras: the image block's preprocessing (Extreme Parkour's crop, clip, resize and
+normalisation), one-line refusals of bad frames and bad camera configurations, the plant's
+rendered depth and its D435 noise at 1 m and 2 m, the camera's own rate beside the control rate,
+a multi-input ONNX policy fed by the runtime, and a frozen or dropped camera stopping the robot
+as a stale sensor does. Tiny frames, a few ticks: rendering runs on Mesa's software EGL here."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import replace
+from functools import cache
+
+import mujoco
+import numpy as np
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from sim2real.deploy.backends.sim.camera import (
+    CameraFaults,
+    DepthNoise,
+    PlantDepthCamera,
+    attach_depth_camera,
+    depth_error,
+)
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+from sim2real.deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from sim2real.deploy.spec.camera import CameraError, DepthImageBlock, check_frames, preprocess
+from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
+
+#: The head camera of the tests: on the Go2's base ahead of its box, looking ahead (MuJoCo
+#: cameras look along their -z), 58 deg vertical field of view (the D435's depth FOV).
+HEAD = {"pos": [0.36, 0.0, 0.03], "xyaxes": [0, -1, 0, 0, 0, 1], "fovy": 58.0}
+#: A tiny depth image: 12 x 16 delivered, 2 rows off the bottom, resized to 8 x 10.
+TINY = DepthImageBlock(
+    camera="head_depth", shape=(12, 16), crop=(0, 2, 1, 1), resize=(8, 10), frames=2, skip=2,
+    rate=25.0, far=3.0,
+)  # fmt: skip
+
+
+@cache
+def egl_works() -> bool:
+    probe = (
+        "import mujoco; from sim2real.deploy.backends.sim.depth_render import DepthRenderer; "
+        'm = mujoco.MjModel.from_xml_string(\'<mujoco><worldbody><camera name="c"/>'
+        "</worldbody></mujoco>'); DepthRenderer(m, 'c', (4, 4), 'probe').render(mujoco.MjData(m))"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["MUJOCO_GL"] = os.environ.get("MUJOCO_GL", "egl")
+    done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True)
+    return done.returncode == 0
+
+
+needs_gl = pytest.mark.skipif(
+    "not egl_works()", reason="no EGL OpenGL context here (MUJOCO_GL=egl): nothing to render"
+)
+
+
+def head_camera_model(robot, wall: float | None = None) -> mujoco.MjModel:
+    """The robot's plant model with the head camera on its base and, given ``wall``, a wall
+    ``wall`` m ahead of the camera (as a user adds a ``<camera>`` to the robot's MJCF)."""
+    spec = robot.mjspec("position")
+    spec.body("base").add_camera(name="head_depth", **HEAD)
+    if wall is not None:
+        x = HEAD["pos"][0] + wall + 0.05
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 3, 1], pos=[x, 0, 1])
+    return spec.compile()
+
+
+# ---------------------------------------------------------------------- the block, no GL
+def test_preprocess_crops_fills_holes_clips_resizes_and_centres_as_extreme_parkour():
+    block = DepthImageBlock(shape=(6, 8), crop=(0, 2, 1, 1), resize=(4, 6), near=0.0, far=2.0)
+    frame = np.full((1, 6, 8), 1.0)
+    frame[0, 4:] = 9.0  # the two bottom rows the crop removes
+    frame[0, :, 0] = 9.0  # the left column it removes
+    np.testing.assert_allclose(preprocess(frame, block), 0.0)  # (1 - 0) / 2 - 0.5
+    frame[0, 1, 3] = 0.0  # no return: reads far, +0.5 after normalisation
+    frame[0, 2, 4] = 5.0  # past far: clipped to far
+    out = preprocess(frame, replace(block, resize=(4, 6)))
+    assert out.shape == (1, 4, 6) and out.dtype == np.float32
+    assert out[0, 1, 2] == pytest.approx(0.5) and out[0, 2, 3] == pytest.approx(0.5)
+    ramp = np.tile(np.linspace(0.5, 1.5, 8), (1, 6, 1))  # bilinear keeps a linear ramp linear
+    wide = preprocess(ramp, replace(block, crop=(0, 0, 0, 0), resize=(6, 4), far=2.0))
+    np.testing.assert_allclose(np.diff(wide[0, 0]), np.diff(wide[0, 0])[0], atol=1e-6)
+
+
+def test_bad_frames_are_refused_in_one_line_naming_the_camera_and_the_shape_expected():
+    with pytest.raises(CameraError) as shape:
+        check_frames(np.zeros((1, 10, 16)), TINY, 1, "frame.depth_image")
+    with pytest.raises(CameraError) as text:
+        check_frames(np.full((1, 12, 16), "1.0"), TINY, 1, "frame.depth_image")
+    for err in (shape, text):
+        line = str(err.value)
+        assert "\n" not in line and "frame.depth_image" in line and "'head_depth'" in line
+    assert "(1, 12, 16)" in str(shape.value) and "<U3" in str(text.value)
+
+
+def test_a_spec_with_an_image_block_round_trips_and_bad_entries_are_refused_in_one_line(go2):
+    spec = replace(PolicySpec.for_robot(go2), images=(TINY,))
+    assert PolicySpec.from_json(spec.to_json()) == spec
+    d = json.loads(spec.to_json())
+    for field, value, words in (
+        ("resize", ["a", 3], "images[0].resize: expected a list of integers"),
+        ("crop", [0, 20, 0, 0], "images[0].crop: [0, 20, 0, 0] leaves"),
+        ("lens", 1, "images[0]: unknown field(s) ['lens']"),
+        ("near", 4.0, "images[0]: near 4.0 m, far 3.0 m"),
+    ):
+        bad = json.loads(json.dumps(d))
+        bad["images"][0][field] = value
+        with pytest.raises(SpecError) as err:
+            PolicySpec.from_json(json.dumps(bad), "policy.json")
+        assert str(err.value).startswith("policy.json: " + words) and "\n" not in str(err.value)
+
+
+def test_a_camera_the_mjcf_lacks_is_refused_in_one_line_naming_the_file(go2):
+    spec = replace(PolicySpec.for_robot(go2), images=(replace(TINY, camera="chin"),))
+    plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2)])
+    with pytest.raises(CameraError) as err:
+        attach_depth_camera(plant, spec)
+    line = str(err.value)
+    assert "\n" not in line and str(go2.mjcf_path) in line and "images[0].camera" in line
+    assert '<camera name="chin">' in line and "['head_depth']" in line
+
+
+# ---------------------------------------------------------------------- rendered
+def depth_policy(robot, tmp_path, block=TINY, stored=None) -> OnnxPolicy:
+    """A two-input policy of ``robot``'s default spec plus ``block``: every action is the mean
+    of the depth image input (batch, frames, rows, columns), whatever the vector says; its spec
+    in the file names ``stored`` (default ``block``)."""
+    spec = replace(PolicySpec.for_robot(robot), images=(block,))
+    d, n = spec.obs_dim, spec.act_dim
+    nodes = [
+        helper.make_node("MatMul", ["obs", "w"], ["zero"]),
+        helper.make_node("ReduceMean", ["depth", "axes"], ["mean"], keepdims=0),
+        helper.make_node("Unsqueeze", ["mean", "one"], ["column"]),
+        helper.make_node("Add", ["zero", "column"], ["action"]),
+    ]
+    weights = {
+        "w": np.zeros((d, n), np.float32),
+        "axes": np.array([1, 2, 3], np.int64),
+        "one": np.array([1], np.int64),
+    }
+    graph = helper.make_graph(
+        nodes,
+        "depth_mean",
+        [
+            helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d]),
+            helper.make_tensor_value_info(
+                "depth", TensorProto.FLOAT, ["batch", *block.input_shape]
+            ),
+        ],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
+        initializer=[numpy_helper.from_array(v, k) for k, v in weights.items()],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    stored = spec if stored is None else replace(spec, images=(stored,))
+    helper.set_model_props(model, {"policy_spec": stored.to_json()})
+    path = tmp_path / "depth.onnx"
+    path.write_bytes(model.SerializeToString())
+    return OnnxPolicy(path, robot)
+
+
+def test_a_graph_input_of_another_shape_than_the_image_block_is_refused_in_one_line(go2, tmp_path):
+    with pytest.raises(PolicyLoadError) as err:
+        depth_policy(go2, tmp_path, stored=replace(TINY, resize=(9, 10)))
+    line = str(err.value)
+    assert "\n" not in line and "graph input 'depth'" in line and "[batch, 2, 9, 10]" in line
+
+
+@needs_gl
+def test_the_depth_of_a_wall_and_the_d435_models_error_at_1_m_and_2_m(go2):
+    for at in (1.0, 2.0):
+        plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=at)])
+        camera = PlantDepthCamera(plant, replace(TINY, shape=(24, 32)), seed=3)
+        truth = camera.true_depth()
+        centre = truth[6:12, 12:20]  # above the horizon: the wall, straight ahead
+        np.testing.assert_allclose(centre, at, rtol=0, atol=2e-3)
+        e = depth_error(camera, 40, at)
+        sigma = DepthNoise().sigma(at)  # 1 % at 1 m, 2 % at 2 m: the datasheet's bound
+        assert e["rms_m"] == pytest.approx(sigma, rel=0.1)
+        camera.close()
+
+
+@needs_gl
+def test_the_runtime_feeds_a_two_input_policy_the_cameras_frames_at_the_cameras_rate(go2, tmp_path):
+    plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
+    policy = depth_policy(go2, tmp_path)
+    camera = attach_depth_camera(
+        plant, policy.spec, latency=0.03, noise=DepthNoise(k=0, edge_jump=0)
+    )
+    rt = Runtime(go2, policy, plant)
+    rt.start()
+    rt.run(50)  # 1 s at 50 Hz; the camera at 25 Hz
+    assert camera.frames[0] == pytest.approx(25 + 1, abs=1)
+    age = rt.cameras.time_since_fresh[0]
+    assert 0.03 - 1e-9 <= age <= 0.03 + 1 / 25 + 1e-9
+    assert (rt.mode == Mode.RUNNING).all() and rt.cameras.taken[0] >= 20
+    expected = preprocess(camera.true_depth()[None], TINY)[0]  # the robot stands: one view
+    np.testing.assert_allclose(policy.images["depth"][0, -1], expected, atol=0.01)  # 2 cm
+    assert policy.graph_action[0, 0] == pytest.approx(policy.images["depth"].mean(), abs=1e-5)
+
+
+@needs_gl
+@pytest.mark.parametrize(
+    "faults",
+    [
+        CameraFaults(freeze=1.0, freeze_frames=1000),  # the first image again, stamped anew
+        CameraFaults(drop=1.0),  # nothing arrives
+        CameraFaults(spike=1.0, spike_latency=0.5),  # every frame half a second late
+    ],
+)
+def test_a_frozen_silent_or_late_camera_stops_the_robot_as_a_stale_sensor(go2, tmp_path, faults):
+    plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
+    policy = depth_policy(go2, tmp_path)
+    attach_depth_camera(plant, policy.spec, faults=faults)
+    rt = Runtime(go2, policy, plant)
+    rt.start()
+    rt.run(30)
+    assert rt.mode[0] >= Mode.SAFE_STOP
+    assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"
+    record = rt.stale_stops.records[0]
+    assert record["camera_s"] > rt.cameras.stale_limit

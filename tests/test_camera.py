@@ -225,3 +225,33 @@ def test_a_frozen_silent_or_late_camera_stops_the_robot_as_a_stale_sensor(go2, t
     assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"
     record = rt.stale_stops.records[0]
     assert record["camera_s"] > rt.cameras.stale_limit
+
+
+def test_policy_export_inspect_shows_the_image_input_and_its_block(go2, tmp_path, capsys):
+    from sim2real.deploy.cli.policy_export import main
+
+    policy = depth_policy(go2, tmp_path)
+    assert main([str(policy.path), "--inspect"]) == 0
+    out = capsys.readouterr().out
+    assert "depth        float32  [batch, 2, 8, 10]" in out
+    assert (
+        "images: depth <- depth camera 'head_depth' 12x16 at 25 Hz, crop [0, 2, 1, 1] (top, "
+        "bottom, left, right), resize 8x10 bilinear, clip 0-3 m centered, 2 frames 2 apart"
+    ) in out
+
+
+@needs_gl
+def test_the_bench_item_times_the_render_and_states_the_error_at_1_m_and_2_m(tmp_path):
+    from bench.camera_cost import measure
+
+    sec = measure(tmp_path, 5)
+    assert [r["what"] for r in sec["rows"]] == [
+        "render 60 x 106 (Extreme Parkour)",
+        "render 240 x 424",
+        "preprocess 60 x 106 -> 58 x 87",
+    ]
+    assert all(r["samples"] == 5 and r["p50_us"] > 0 for r in sec["rows"])
+    errors = {e["at_m"]: e for e in sec["errors"]}
+    assert errors[1.0]["rms_percent"] == pytest.approx(1.0, rel=0.1)
+    assert errors[2.0]["rms_percent"] == pytest.approx(2.0, rel=0.1)
+    assert errors[2.0]["datasheet_percent"] == 2.0

@@ -255,3 +255,38 @@ def test_the_bench_item_times_the_render_and_states_the_error_at_1_m_and_2_m(tmp
     assert errors[1.0]["rms_percent"] == pytest.approx(1.0, rel=0.1)
     assert errors[2.0]["rms_percent"] == pytest.approx(2.0, rel=0.1)
     assert errors[2.0]["datasheet_percent"] == 2.0
+
+
+def test_deploy_run_refuses_a_camera_the_robots_mjcf_lacks_in_one_line(go2, tmp_path, capsys):
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    policy = depth_policy(go2, tmp_path)  # the shipped Go2 has no <camera name="head_depth">
+    code = deploy_run_main(["--robot", "go2", "--policy", str(policy.path), "--duration", "0.2"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and len([line for line in err if "error" in line]) == 1
+    assert err[-1].startswith(f"deploy-run: error: {go2.mjcf_path}: images[0].camera")
+    assert '<camera name="head_depth">' in err[-1]
+
+
+@needs_gl
+def test_deploy_run_renders_the_head_camera_of_a_robot_folder_at_the_rate_asked(tmp_path, capsys):
+    from bench.camera_cost import head_camera_robot
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.robots import load_robot
+
+    folder = head_camera_robot(tmp_path / "go2_head", wall=1.5)  # as a user adds a camera
+    policy = depth_policy(load_robot(folder), tmp_path)
+    report = tmp_path / "report.json"
+    code = deploy_run_main(
+        ["--robot", str(folder), "--policy", str(policy.path), "--duration", "1",
+         "--camera-rate", "30", "--camera-latency", "0.02", "--report", str(report)]
+    )  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code == 0, out + err
+    assert "deploy-run: depth camera 'head_depth' 12x16 at 30 Hz, latency 0.02 s" in err
+    camera = json.loads(report.read_text())["camera"]
+    assert camera["plant"]["frames"] == [
+        30
+    ]  # captured at 0, 1/30 .. 29/30 s and camera["plant"]["rate_hz"] == 30
+    assert camera["frames_taken"][0] >= 29 and camera["frames_repeated"] == [0]
+    assert camera["oldest_s"][0] <= 0.02 + 1 / 30 + 1e-6  # the newest frame's age at most

@@ -95,6 +95,7 @@ def run(args) -> int:
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
     _attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
+    _attach_camera(args, backend, policy.spec)  # an image input: the plant's MJCF camera
     check_drive_applied(drive, simulated or getattr(backend, "commands_gains", False), args.backend)
     for line in drive.values():
         print(
@@ -127,6 +128,38 @@ def _attach_height_map(args, backend, spec) -> None:
     if attach_height_scanner(backend, spec, noise, args.seed) is not None:
         print(
             f"deploy-run: height scan: ray casts on the plant, {noise.to_dict()}", file=sys.stderr
+        )
+
+
+def _attach_camera(args, backend, spec) -> None:
+    """A policy with a depth image input on the plant: its MJCF camera rendered at
+    ``--camera-rate`` with ``--camera-latency`` and the D435 depth model
+    (:mod:`sim2real.deploy.backends.sim.camera`), said on stderr.
+
+    Raises:
+        ValueError: a camera the MJCF lacks (CameraError), a rate <= 0 or a latency < 0, no
+            OpenGL context to render with."""
+    from sim2real.deploy.backends.sim.camera import attach_depth_camera
+
+    if getattr(spec, "images", ()) and not (
+        (args.camera_rate is None or args.camera_rate > 0) and args.camera_latency >= 0
+    ):
+        raise ValueError(
+            f"--camera-rate {args.camera_rate} Hz, --camera-latency {args.camera_latency} s: "
+            "expected a positive rate and a latency >= 0"
+        )
+    try:
+        camera = attach_depth_camera(
+            backend, spec, args.camera_rate, args.camera_latency, seed=args.seed
+        )
+    except RuntimeError as exc:  # no OpenGL context: one line naming MUJOCO_GL
+        raise ValueError(str(exc)) from None
+    if camera is not None:
+        print(
+            f"deploy-run: depth camera '{camera.block.camera}' {camera.block.shape[0]}x"
+            f"{camera.block.shape[1]} at {camera.rate:g} Hz, latency {camera.latency:g} s, "
+            f"{camera.noise.to_dict()}",
+            file=sys.stderr,
         )
 
 
@@ -344,6 +377,7 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
         "final_cause": rt.cause_names(),
         "tick_cost_us": rt.tick_cost.summary(),
         "height_map": rt.height_map.summary() if rt.height_map is not None else None,
+        "camera": _camera_report(rt, backend),
         "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
         "deadline": {
             "overruns": clock.overruns,
@@ -357,6 +391,16 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
     }
     report.setdefault("ros2", None)
     return report
+
+
+def _camera_report(rt, backend) -> dict | None:
+    """The report's ``camera``: the runtime's camera stage (frames taken, repeated, the oldest
+    age) and the plant camera's counts (captured, delivered, dropped, late, frozen); None
+    without an image input."""
+    if rt.cameras is None:
+        return None
+    source = getattr(backend, "camera_source", None)
+    return {**rt.cameras.summary(), "plant": source.summary() if source is not None else None}
 
 
 def fault_report(rig, injector) -> dict:

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.backends.registry import make_backend
+from sim2real.deploy.cli.exteroception import attach_camera, attach_height_map, camera_report
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
 from sim2real.deploy.cli.run_operator import (
@@ -94,8 +95,8 @@ def run(args) -> int:
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
-    _attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
-    _attach_camera(args, backend, policy.spec)  # an image input: the plant's MJCF camera
+    attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
+    attach_camera(args, backend, policy.spec)  # an image input: the plant's MJCF camera
     check_drive_applied(drive, simulated or getattr(backend, "commands_gains", False), args.backend)
     for line in drive.values():
         print(
@@ -116,51 +117,6 @@ def run(args) -> int:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
         backend.close()  # servo bus: torque off; Unitree: damped
-
-
-def _attach_height_map(args, backend, spec) -> None:
-    """A policy with a ``height_scan`` block on the plant: its ray casts as the elevation map,
-    with noise, latency, dropout and drift drawn from ``--seed``
-    (:mod:`sim2real.deploy.backends.sim.height_scan`), said on stderr."""
-    from sim2real.deploy.backends.sim.height_scan import HeightScanRanges, attach_height_scanner
-
-    noise = HeightScanRanges().sample(np.random.default_rng(args.seed))
-    if attach_height_scanner(backend, spec, noise, args.seed) is not None:
-        print(
-            f"deploy-run: height scan: ray casts on the plant, {noise.to_dict()}", file=sys.stderr
-        )
-
-
-def _attach_camera(args, backend, spec) -> None:
-    """A policy with a depth image input on the plant: its MJCF camera rendered at
-    ``--camera-rate`` with ``--camera-latency`` and the D435 depth model
-    (:mod:`sim2real.deploy.backends.sim.camera`), said on stderr.
-
-    Raises:
-        ValueError: a camera the MJCF lacks (CameraError), a rate <= 0 or a latency < 0, no
-            OpenGL context to render with."""
-    from sim2real.deploy.backends.sim.camera import attach_depth_camera
-
-    if getattr(spec, "images", ()) and not (
-        (args.camera_rate is None or args.camera_rate > 0) and args.camera_latency >= 0
-    ):
-        raise ValueError(
-            f"--camera-rate {args.camera_rate} Hz, --camera-latency {args.camera_latency} s: "
-            "expected a positive rate and a latency >= 0"
-        )
-    try:
-        camera = attach_depth_camera(
-            backend, spec, args.camera_rate, args.camera_latency, seed=args.seed
-        )
-    except RuntimeError as exc:  # no OpenGL context: one line naming MUJOCO_GL
-        raise ValueError(str(exc)) from None
-    if camera is not None:
-        print(
-            f"deploy-run: depth camera '{camera.block.camera}' {camera.block.shape[0]}x"
-            f"{camera.block.shape[1]} at {camera.rate:g} Hz, latency {camera.latency:g} s, "
-            f"{camera.noise.to_dict()}",
-            file=sys.stderr,
-        )
 
 
 def run_policies(args, robot) -> dict:
@@ -377,7 +333,7 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
         "final_cause": rt.cause_names(),
         "tick_cost_us": rt.tick_cost.summary(),
         "height_map": rt.height_map.summary() if rt.height_map is not None else None,
-        "camera": _camera_report(rt, backend),
+        "camera": camera_report(rt, backend),
         "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
         "deadline": {
             "overruns": clock.overruns,
@@ -391,16 +347,6 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
     }
     report.setdefault("ros2", None)
     return report
-
-
-def _camera_report(rt, backend) -> dict | None:
-    """The report's ``camera``: the runtime's camera stage (frames taken, repeated, the oldest
-    age) and the plant camera's counts (captured, delivered, dropped, late, frozen); None
-    without an image input."""
-    if rt.cameras is None:
-        return None
-    source = getattr(backend, "camera_source", None)
-    return {**rt.cameras.summary(), "plant": source.summary() if source is not None else None}
 
 
 def fault_report(rig, injector) -> dict:

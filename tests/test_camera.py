@@ -12,6 +12,7 @@ import subprocess
 import sys
 from dataclasses import replace
 from functools import cache
+from types import SimpleNamespace
 
 import mujoco
 import numpy as np
@@ -28,6 +29,7 @@ from sim2real.deploy.backends.sim.camera import (
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.runtime import FAULT_CAUSES, Mode, Runtime
+from sim2real.deploy.runtime.camera import CameraInput
 from sim2real.deploy.spec.camera import CameraError, DepthImageBlock, check_frames, preprocess
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 from sim2real.deploy.spec.policy_spec import PolicySpec, SpecError
@@ -124,6 +126,53 @@ def test_a_camera_the_mjcf_lacks_is_refused_in_one_line_naming_the_file(go2):
     line = str(err.value)
     assert "\n" not in line and str(go2.mjcf_path) in line and "images[0].camera" in line
     assert '<camera name="chin">' in line and "['head_depth']" in line
+
+
+class Frames:
+    """A camera driver's frames by hand: ``deliver(t, depth, stamp)`` as a backend writes them."""
+
+    def __init__(self, block, envs=1):
+        self.time = np.zeros(envs)
+        self.depth_image = np.zeros((envs, *block.shape), np.float32)
+        self.depth_stamp = np.full(envs, np.nan)
+
+    def deliver(self, t, depth, stamp):
+        self.time[:] = t
+        self.depth_image[:] = depth
+        self.depth_stamp[:] = stamp
+        return self
+
+
+def test_the_camera_stage_stacks_frames_skip_apart_and_takes_a_repeated_image_for_no_frame():
+    block = replace(TINY, crop=(0, 0, 0, 0), resize=TINY.shape, near=0.0, far=10.0, frames=3)
+    stage = CameraInput(block, 1, stale_limit=0.2)
+    frames = Frames(block)
+    value = lambda k: 1.0 + 0.5 * k  # noqa: E731 - frame k's depth everywhere, m
+    norm = lambda d: d / 10.0 - 0.5  # noqa: E731 - centered over [0, 10] m
+    stage.update(frames.deliver(0.0, value(0), 0.0))
+    np.testing.assert_allclose(stage.image[0, :, 0, 0], norm(value(0)))  # the first fills it
+    for k in range(1, 6):
+        stage.update(frames.deliver(0.04 * k, value(k), 0.04 * k))
+    # skip 2: the newest (5), two before it (3), two before that (1); oldest first
+    np.testing.assert_allclose(stage.image[0, :, 0, 0], [norm(value(k)) for k in (1, 3, 5)])
+    assert not stage.stale[0] and stage.taken[0] == 6
+    frozen = value(5)  # the same image again with new stamps: not fresh
+    for k in range(6, 12):
+        stale = stage.update(frames.deliver(0.04 * k, frozen, 0.04 * k))
+    assert stage.repeated[0] == 6 and stage.taken[0] == 6 and stale[0]
+    assert stage.time_since_fresh[0] == pytest.approx(0.04 * 11 - 0.2)
+    state = stage.state_dict()
+    other = CameraInput(block, 1, stale_limit=0.2)
+    other.load_state_dict(state)
+    np.testing.assert_array_equal(other.image, stage.image)
+    narrow = SimpleNamespace(
+        time=np.full(1, 0.5), depth_stamp=np.full(1, 0.5), depth_image=np.zeros((1, 12, 15))
+    )
+    with pytest.raises(CameraError) as err:  # a driver's frame of another shape
+        stage.update(narrow)
+    assert "frame.depth_image: camera 'head_depth' gave a frame of shape (1, 12, 15)" in str(
+        err.value
+    )
 
 
 # ---------------------------------------------------------------------- rendered

@@ -339,3 +339,42 @@ def test_deploy_run_renders_the_head_camera_of_a_robot_folder_at_the_rate_asked(
     ]  # captured at 0, 1/30 .. 29/30 s and camera["plant"]["rate_hz"] == 30
     assert camera["frames_taken"][0] >= 29 and camera["frames_repeated"] == [0]
     assert camera["oldest_s"][0] <= 0.02 + 1 / 30 + 1e-6  # the newest frame's age at most
+
+
+@needs_gl
+def test_a_knocked_camera_sees_the_wall_obliquely_and_a_covered_lens_reads_no_depth(go2):
+    plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
+    faults = CameraFaults(occlusion=0.25, extrinsic=(0.0, 0.3, 0.0))  # 0.3 rad about its up axis
+    block = replace(TINY, shape=(25, 33))  # an odd size: a centre pixel on the optical axis
+    camera = PlantDepthCamera(plant, block, noise=DepthNoise(k=0, edge_jump=0), faults=faults)
+    straight = PlantDepthCamera(plant, block, noise=DepthNoise(k=0, edge_jump=0))
+    assert straight.true_depth()[12, 16] == pytest.approx(1.0, abs=2e-3)
+    assert camera.true_depth()[12, 16] == pytest.approx(1.0 / np.cos(0.3), abs=2e-3)
+    frame = SimpleNamespace(time=np.zeros(1))
+    camera.fill(frame)
+    blind = round(0.25 * 33)
+    assert (frame.depth_image[0, :, :blind] == 0).all()
+    assert (frame.depth_image[0, :12, blind:] > 0).all()  # the wall above the horizon
+
+
+@needs_gl
+def test_deploy_run_draws_the_runs_camera_faults_from_its_seed(tmp_path, capsys):
+    from bench.camera_cost import head_camera_robot
+    from sim2real.deploy.backends.sim.camera import CameraFaultRanges
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.robots import load_robot
+
+    folder = head_camera_robot(tmp_path / "go2_head", wall=1.5)
+    policy = depth_policy(load_robot(folder), tmp_path)
+    report = tmp_path / "report.json"
+    code = deploy_run_main(
+        ["--robot", str(folder), "--policy", str(policy.path), "--duration", "0.5",
+         "--camera-faults", "drawn", "--seed", "3", "--report", str(report)]
+    )  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code in (0, 2), out + err  # 2: a frozen spell or a late frame stopped it safely
+    drawn = CameraFaultRanges().sample(np.random.default_rng([3, 99])).to_dict()
+    assert f"faults {drawn}" in err
+    assert json.loads(report.read_text())["camera"]["plant"]["faults"] == json.loads(
+        json.dumps(drawn)
+    )

@@ -25,13 +25,14 @@ def attach_height_map(args, backend, spec) -> None:
 
 def attach_camera(args, backend, spec) -> None:
     """A policy with a depth image input on the plant: its MJCF camera rendered at
-    ``--camera-rate`` with ``--camera-latency`` and the D435 depth model
+    ``--camera-rate`` with ``--camera-latency``, the D435 depth model and, with
+    ``--camera-faults drawn``, faults drawn from ``--seed``
     (:mod:`sim2real.deploy.backends.sim.camera`), said on stderr.
 
     Raises:
         ValueError: a camera the MJCF lacks (CameraError), a rate <= 0 or a latency < 0, no
             OpenGL context to render with."""
-    from sim2real.deploy.backends.sim.camera import attach_depth_camera
+    from sim2real.deploy.backends.sim.camera import CameraFaultRanges, attach_depth_camera
 
     if getattr(spec, "images", ()) and not (
         (args.camera_rate is None or args.camera_rate > 0) and args.camera_latency >= 0
@@ -40,9 +41,12 @@ def attach_camera(args, backend, spec) -> None:
             f"--camera-rate {args.camera_rate} Hz, --camera-latency {args.camera_latency} s: "
             "expected a positive rate and a latency >= 0"
         )
+    faults = None
+    if args.camera_faults == "drawn":  # its own stream: the other draws of --seed stay as they are
+        faults = CameraFaultRanges().sample(np.random.default_rng([args.seed, 99]))
     try:
         camera = attach_depth_camera(
-            backend, spec, args.camera_rate, args.camera_latency, seed=args.seed
+            backend, spec, args.camera_rate, args.camera_latency, faults=faults, seed=args.seed
         )
     except RuntimeError as exc:  # no OpenGL context: one line naming MUJOCO_GL
         raise ValueError(str(exc)) from None
@@ -50,7 +54,7 @@ def attach_camera(args, backend, spec) -> None:
         print(
             f"deploy-run: depth camera '{camera.block.camera}' {camera.block.shape[0]}x"
             f"{camera.block.shape[1]} at {camera.rate:g} Hz, latency {camera.latency:g} s, "
-            f"{camera.noise.to_dict()}",
+            f"{camera.noise.to_dict()}, faults {camera.faults.to_dict()}",
             file=sys.stderr,
         )
 

@@ -225,6 +225,13 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         help="--backend sim: s from a frame's capture to its delivery (default 0)",
     )
     p.add_argument(
+        "--camera-faults",
+        choices=("none", "drawn"),
+        default="none",
+        help="--backend sim: 'drawn', the run's camera faults (dropped, late and frozen frames, "
+        "a covered lens, a knocked mount) drawn from --seed (CameraFaultRanges); default none",
+    )
+    p.add_argument(
         "--motion-start-after",
         type=float,
         default=0.0,

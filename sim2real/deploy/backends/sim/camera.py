@@ -23,13 +23,18 @@ Faults (:class:`CameraFaults`, drawn per frame from the generator seeded by ``se
 is lost with probability ``drop``; with probability ``spike`` it arrives ``spike_latency`` s
 later; a frozen spell starts at a frame with probability ``freeze`` and lasts ``freeze_frames``
 frames, each delivered on time with a fresh stamp and the image of the frame before it (a
-driver stuck on its buffer: the runtime sees a repeated image, which is not fresh).
+driver stuck on its buffer: the runtime sees a repeated image, which is not fresh). Two faults
+hold for the whole session: ``occlusion``, the fraction of the image's columns, from its left
+edge, that a covered or smudged lens blinds (they read 0, no depth); ``extrinsic``, the camera
+knocked on its mount, turned by (rx, ry, rz) rad about its own x (right), y (up) and z (back)
+axes in that order (the MJCF pose is the calibrated one the policy trained with).
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+import mujoco
 import numpy as np
 
 from sim2real.deploy.backends.sim.depth_render import DepthRenderer
@@ -85,25 +90,31 @@ class DepthNoise:
 @dataclass(frozen=True)
 class CameraFaults:
     """A session's camera faults (module docstring): ``drop``, ``spike`` and ``freeze``
-    probabilities per frame, ``spike_latency`` s, ``freeze_frames`` frames."""
+    probabilities per frame, ``spike_latency`` s, ``freeze_frames`` frames; ``occlusion`` (a
+    fraction of the columns) and ``extrinsic`` (rad) for the session."""
 
     drop: float = 0.0
     spike: float = 0.0
     spike_latency: float = 0.1
     freeze: float = 0.0
     freeze_frames: int = 10
+    occlusion: float = 0.0
+    extrinsic: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         if not (
-            0 <= self.drop <= 1
+            0 <= self.occlusion <= 1
+            and len(self.extrinsic) == 3
+            and np.all(np.isfinite(self.extrinsic))
+            and 0 <= self.drop <= 1
             and 0 <= self.spike <= 1
             and 0 <= self.freeze <= 1
             and self.spike_latency >= 0
             and self.freeze_frames >= 1
         ):
             raise ValueError(
-                f"CameraFaults: probabilities in [0, 1], spike_latency >= 0 s, freeze_frames "
-                f">= 1; got {self}"
+                f"CameraFaults: probabilities and occlusion in [0, 1], spike_latency >= 0 s, "
+                f"freeze_frames >= 1, extrinsic 3 finite rad; got {self}"
             )
 
     def to_dict(self) -> dict:
@@ -151,6 +162,15 @@ class PlantDepthCamera:
         self.rng = np.random.default_rng(seed)
         envs = plant.envs
         self.renderers = [DepthRenderer(m, block.camera, block.shape, where) for m in plant.models]
+        if any(self.faults.extrinsic):  # the camera knocked on its mount
+            turn = np.zeros(4)
+            mujoco.mju_euler2Quat(turn, np.asarray(self.faults.extrinsic, float), "XYZ")
+            for r in self.renderers:
+                cid, quat = r.cam.fixedcamid, np.zeros(4)
+                mujoco.mju_mulQuat(quat, r.model.cam_quat[cid].copy(), turn)
+                r.model.cam_quat[cid] = quat
+        #: the columns a covered lens blinds
+        self._blind = int(round(self.faults.occlusion * block.shape[1]))
         self.frames = np.zeros(envs, dtype=np.int64)
         self.delivered = np.zeros(envs, dtype=np.int64)
         self.dropped = np.zeros(envs, dtype=np.int64)
@@ -175,6 +195,7 @@ class PlantDepthCamera:
             image = self._last[e].copy()
         else:
             image = self.noise.apply(self.true_depth(e), rng).astype(np.float32)
+            image[:, : self._blind] = 0.0  # a covered lens: no depth
             self._last[e] = image
             if f.freeze and rng.random() < f.freeze:
                 self._freeze_left[e] = f.freeze_frames
@@ -230,22 +251,28 @@ class PlantDepthCamera:
 class CameraFaultRanges:
     """The ranges a session's :class:`CameraFaults` are drawn from, uniformly (our choice):
     ``drop`` 0-5 % of frames, ``spike`` 0-2 % of frames 50-200 ms late, ``freeze`` 0-0.5 % of
-    frames starting a 5-30 frame spell."""
+    frames starting a 5-30 frame spell, ``occlusion`` 0-10 % of the columns, ``extrinsic`` up
+    to 2 deg about each axis (a camera knocked on its mount)."""
 
     drop: tuple[float, float] = (0.0, 0.05)
     spike: tuple[float, float] = (0.0, 0.02)
     spike_latency: tuple[float, float] = (0.05, 0.2)
     freeze: tuple[float, float] = (0.0, 0.005)
     freeze_frames: tuple[int, int] = (5, 30)
+    occlusion: tuple[float, float] = (0.0, 0.1)
+    extrinsic: float = float(np.radians(2.0))
 
     def sample(self, rng: np.random.Generator) -> CameraFaults:
-        """One session's draw (five draws of ``rng``, in the fields' order)."""
+        """One session's draw (seven draws of ``rng``, in the fields' order; ``extrinsic``
+        three uniform in +-``extrinsic`` rad)."""
         return CameraFaults(
             drop=float(rng.uniform(*self.drop)),
             spike=float(rng.uniform(*self.spike)),
             spike_latency=float(rng.uniform(*self.spike_latency)),
             freeze=float(rng.uniform(*self.freeze)),
             freeze_frames=int(rng.integers(self.freeze_frames[0], self.freeze_frames[1] + 1)),
+            occlusion=float(rng.uniform(*self.occlusion)),
+            extrinsic=tuple(float(v) for v in rng.uniform(-self.extrinsic, self.extrinsic, 3)),
         )
 
 

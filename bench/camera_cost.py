@@ -1,7 +1,7 @@
 """What a depth camera costs and how wrong it is: the Go2 with a head depth camera (the way a user
 adds one: a ``<camera>`` on the base in a copy of the robot's folder, :func:`head_camera_robot`),
 MuJoCo's offscreen render per frame at Extreme Parkour's 60 x 106 and at 240 x 424, the depth
-model's error on a wall 1 m and 2 m ahead against the D435 datasheet's bound (RMS <= 2 % at 2 m),
+model's error on a flat target 1 m and 2 m ahead against the D435 datasheet's bound (RMS <= 2 % at 2 m),
 and the image preprocessing per frame.
 
 Usage::
@@ -32,10 +32,10 @@ from sim2real.deploy.backends.sim.camera import D435_AT, D435_RMS
 HEAD_CAMERA = '<camera name="head_depth" pos="0.36 0 0.03" xyaxes="0 -1 0 0 0 1" fovy="58"/>'
 
 
-def head_camera_robot(out: Path, wall: float | None = None) -> Path:
+def head_camera_robot(out: Path, target: float | None = None) -> Path:
     """A copy of the shipped Go2's folder in ``out`` with :data:`HEAD_CAMERA` on its base and,
-    when ``wall`` is given, a wall ``wall`` m ahead of the camera (2 m high, 6 m wide); the
-    folder's path (``load_robot`` reads it)."""
+    when ``target`` is given, a flat box that far ahead of the camera, m (2 m high, 6 m wide);
+    the folder's path (``load_robot`` reads it)."""
     from sim2real.robots.loading import ROBOTS_DIR
 
     out.mkdir(parents=True, exist_ok=True)
@@ -43,8 +43,8 @@ def head_camera_robot(out: Path, wall: float | None = None) -> Path:
         shutil.copy(Path(ROBOTS_DIR) / "go2" / f, out / f)
     xml = (out / "go2.xml").read_text()
     xml = re.sub(r'(<site name="imu"[^>]*/>)', r"\1\n      " + HEAD_CAMERA, xml, count=1)
-    if wall is not None:
-        x = 0.36 + wall + 0.05  # the wall's near face `wall` m ahead of the camera
+    if target is not None:
+        x = 0.36 + target + 0.05  # the box's near face `target` m ahead of the camera
         geom = f'<geom name="wall" type="box" size="0.05 3 1" pos="{x:.4f} 0 1"/>'
         xml = xml.replace('<light name="sun"', geom + '\n    <light name="sun"', 1)
     (out / "go2.xml").write_text(xml)
@@ -69,7 +69,7 @@ def render_costs(robot, block, frames: int) -> np.ndarray:
 
 
 def wall_errors(out: Path, frames: int) -> dict[float, dict]:
-    """The D435 model's depth error on a wall 1 m and 2 m ahead of the head camera."""
+    """The D435 model's depth error on a flat target 1 m and 2 m ahead of the head camera."""
     from sim2real.deploy.backends.sim.camera import PlantDepthCamera, depth_error
     from sim2real.deploy.backends.sim.plant import SimBackend
     from sim2real.deploy.spec.camera import DepthImageBlock
@@ -78,7 +78,7 @@ def wall_errors(out: Path, frames: int) -> dict[float, dict]:
     block = DepthImageBlock(camera="head_depth")
     rows = {}
     for at in (1.0, 2.0):
-        robot = load_robot(head_camera_robot(out / f"wall_{at:g}", wall=at))
+        robot = load_robot(head_camera_robot(out / f"wall_{at:g}", target=at))
         plant = SimBackend(robot, "position", envs=1)
         camera = PlantDepthCamera(plant, block, seed=0)
         rows[at] = depth_error(camera, frames, at)

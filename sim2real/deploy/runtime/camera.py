@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.runtime.height_map import height_map_stage
 from sim2real.deploy.spec.camera import DepthImageBlock, check_frames, preprocess
 
 #: Frame periods past the robot's stale limit before a camera is stale (module docstring).
@@ -99,6 +100,13 @@ class CameraInput:
             images[:] = self.image
         return self.stale
 
+    def feed(self, frame, policy, supervision) -> None:
+        """The tick's :meth:`update`, written into ``policy.images[block.input]`` (the array an
+        :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` binds), and the safe stop
+        (``stale_sensor``) of the envs whose camera is stale."""
+        images = getattr(policy, "images", {}).get(self.block.input)
+        supervision.safe_stop(self.update(frame, images), "stale_sensor")
+
     def _push(self, e: int, depth: np.ndarray, stamp: float) -> None:
         span = self._ring.shape[1]
         image = preprocess(depth[None], self.block)[0]
@@ -112,9 +120,17 @@ class CameraInput:
         newest = (self.taken[e] - 1) % span
         self.image[e] = self._ring[e, (newest - self._back) % span]
 
+    def stale_phrase(self, e: int) -> str:
+        """What env ``e``'s camera did, for a stale stop's verdict: frames repeated (frozen) or
+        none fresh."""
+        if self.repeated[e]:
+            return f"{int(self.repeated[e])} frames repeated with new stamps (frozen)"
+        return "no fresh frame arrived (dropped or late)"
+
     def reset(self, envs: np.ndarray) -> None:
         """Start the history of the envs of ``envs`` (bool mask) again: their next fresh frame
-        fills it (their stamps and counts are kept)."""
+        fills it (their stamps and counts are kept). The runtime does not call it at a restart:
+        the history then refills within ``frames x skip`` frames."""
         envs = np.asarray(envs, dtype=bool)
         self.taken[envs] = 0
         self._raw[envs] = np.nan
@@ -148,6 +164,16 @@ class CameraInput:
     def load_state_dict(self, state, env: int | None = None) -> None:
         """Raises StateDictError: a missing field or another shape (nothing written)."""
         put(self._fields(), state, env)
+
+
+def exteroception(spec, state, envs: int, robot, backend) -> tuple:
+    """The runtime's exteroceptive stages: ``(height map, camera)``, each None where the spec
+    has no such input (:func:`sim2real.deploy.runtime.height_map.height_map_stage`,
+    :func:`camera_stage`)."""
+    return (
+        height_map_stage(spec, state, envs, robot, backend),
+        camera_stage(spec, envs, robot, backend),
+    )
 
 
 def camera_stage(spec, envs: int, robot, backend) -> CameraInput | None:

@@ -29,11 +29,10 @@ from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
-from sim2real.deploy.runtime.camera import camera_stage
+from sim2real.deploy.runtime.camera import exteroception
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
-from sim2real.deploy.runtime.height_map import height_map_stage
 from sim2real.deploy.runtime.run_loop import RunLoop
 from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
@@ -55,11 +54,9 @@ class Runtime:
         robot: Robot description.
         policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
             attribute (:class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`); its ``reset(envs)``
-            (boolean mask (envs,)), if it has one, is called where the policy's state must start
-            afresh.
+            (boolean mask (envs,)), if it has one, is called where its state must start afresh.
         backend: A :class:`~sim2real.deploy.core.backend.Backend` (``read``, ``write``, ``advance``,
-            ``drive_errors``), opened: :class:`~sim2real.deploy.backends.sim.plant.SimBackend` or a servo
-            bus.
+            ``drive_errors``), opened: :class:`~sim2real.deploy.backends.sim.plant.SimBackend` or a servo bus.
         clock: :class:`SimClock` (default) or :class:`WallClock`.
         injector: Optional :class:`~sim2real.deploy.backends.sim.faults.FaultInjector` (simulation only).
         telemetry: Optional :class:`~sim2real.deploy.observe.telemetry.Telemetry` recorder.
@@ -130,10 +127,8 @@ class Runtime:
         #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
-        #: a height_scan policy: its elevation map (stale: a safe stop; else None)
-        self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
-        #: a policy with an image input: its camera (stale: a safe stop; else None)
-        self.cameras = camera_stage(self.spec, envs, robot, backend)
+        #: a height_scan policy's elevation map, an image input's camera (stale: a safe stop)
+        self.height_map, self.cameras = exteroception(self.spec, self.state, envs, robot, backend)
         #: the tick's part the kind's base adds (a floating base: kinds.legged_tick) and its
         #: stages: the base estimate (IMU, leg kinematics) and the fall check (None: an arm)
         self.base_tick = kind.tick_stage(self)
@@ -216,8 +211,6 @@ class Runtime:
         as before its first call; a training episode's reset zeroes it too)."""
         if hasattr(self.policy, "reset"):  # a policy with state (a recurrent one)
             self.policy.reset(envs)
-        if self.cameras is not None:  # the next fresh frame fills the image history
-            self.cameras.reset(envs)
         self.spec.plan.reset_history(envs)
         self.state.last_action[envs] = 0.0
 
@@ -397,9 +390,8 @@ class Runtime:
             state = self.estimator.update(frame, self.state, self._input)
             self.kinematics.update(state)
             self.base_tick.update(frame, state)  # a floating base: IMU, contacts, clock; falls
-            if self.cameras is not None:  # the image input, in the policy's bound array
-                images = getattr(self.policy, "images", {}).get(self.cameras.block.input)
-                self.supervision.safe_stop(self.cameras.update(frame, images), "stale_sensor")
+            if self.cameras is not None:  # the image input, into the policy's bound array
+                self.cameras.feed(frame, self.policy, self.supervision)
             self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
             st[2] = clock_ns()
             obs = self._observe(state)

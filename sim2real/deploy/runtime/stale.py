@@ -95,6 +95,9 @@ class StaleStops:
         ours = self._our_side(without)
         other = stale_context(rt.backend, e)
         other["joints"] = {n: t for n, t in other.get("joints", {}).items() if n in joints}
+        if camera_s is not None and not joints and imu_s is None and map_s is None:
+            stream = f"depth camera '{cameras.block.camera}'"  # frozen or silent
+            other.update(stream=stream, other_side=cameras.stale_phrase(e))
         return {
             "tick": int(rt.ticks),
             "t_s": round(float(rt.time), 6),

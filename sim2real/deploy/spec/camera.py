@@ -48,6 +48,14 @@ INTERPOLATIONS = ("bilinear", "nearest")
 NORMALISATIONS = ("centered", "unit")
 
 
+#: The JSON Schema's words for a spec's ``images`` (sim2real/deploy/spec/schema.py).
+IMAGES_DESCRIPTION = (
+    "Depth image inputs of the graph (sim2real/deploy/spec/camera.py DepthImageBlock: input, "
+    "camera, shape, crop, resize, interpolation, near, far, normalisation, frames, skip, rate); "
+    "left out: none."
+)
+
+
 class CameraError(Sim2RealError, ValueError):
     """A camera frame or a camera configuration refused; the message names where and what was
     expected."""
@@ -171,6 +179,15 @@ class DepthImageBlock:
         if problems:
             raise CameraError(problems[0])
         return block
+
+
+def image_blocks(items: list) -> tuple[DepthImageBlock, ...]:
+    """A spec document's ``images`` entries as blocks (:meth:`DepthImageBlock.from_dict`, each
+    named ``images[i]``).
+
+    Raises:
+        CameraError: an entry refused (naming ``images[i]`` and the field)."""
+    return tuple(DepthImageBlock.from_dict(d, f"images[{i}]") for i, d in enumerate(items))
 
 
 def check_frames(frames, block: DepthImageBlock, envs: int, where: str) -> np.ndarray:

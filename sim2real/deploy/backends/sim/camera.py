@@ -1,6 +1,5 @@
-"""A simulated depth camera on each env of a plant (:class:`PlantDepthCamera`): frames rendered
-from the MJCF ``<camera>`` at the camera's own rate, degraded by a RealSense D435's depth model,
-delivered late, dropped or frozen as the session's faults say.
+"""A simulated depth camera on each env of a plant (:class:`PlantDepthCamera`): the MJCF
+``<camera>`` rendered at its own rate, with a D435's depth model and the session's faults.
 
 Timing. Frame ``k`` is captured at ``k / rate`` s (the first control tick at or after it renders
 the scene: a 30 Hz camera beside a 200 Hz control loop captures every 6th or 7th tick) and is
@@ -9,15 +8,16 @@ frame carries the newest delivered image (``frame.depth_image`` (envs, rows, col
 capture time (``frame.depth_stamp`` (envs,) s; NaN: nothing delivered yet); the runtime's camera
 stage (:mod:`sim2real.deploy.runtime.camera`) sees its age.
 
-Depth model (:class:`DepthNoise`; Intel RealSense D400 Series datasheet, D435: depth RMS error
-<= 2 % at 2 m, depth unit 1 mm by default, range up to about 10 m, minimum depth about 0.1 m):
-the true z-depth ``z`` plus Gaussian noise of standard deviation ``k z^2`` (stereo depth error
-grows with the square of the distance: ``dz = z^2 d / (f b)`` for a disparity error ``d``,
-focal length ``f`` px and baseline ``b``); ``k`` = 0.01 / m gives 2 % (4 cm) at 2 m and 1 % at
-1 m, the datasheet's bound. A pixel nearer than ``min_range`` or past ``max_range`` is invalid
-(0, as librealsense writes it); so is a pixel at a depth edge (a 4-neighbour more than
-``edge_jump`` times its own depth away: the stereo matcher's holes beside a foreground
-object, our choice 0.1); the rest is rounded to ``depth_unit``.
+Depth model (:class:`DepthNoise`; Intel RealSense D400 Series datasheet 337029, D435: depth RMS
+error <= 2 % at 2 m, depth unit 1 mm, range up to 10 m; minimum depth 0.11 m, Intel's figure for
+the D435 on its forum, the datasheet's min-Z table giving it per resolution): the true z-depth
+``z`` plus Gaussian noise of standard deviation ``k z^2`` (stereo depth error grows with the
+square of the distance: ``dz = z^2 d / (f b)`` for a disparity error ``d``, focal length ``f`` px
+and baseline ``b``); ``k`` = 0.01 / m gives 2 % (4 cm) at 2 m and 1 % at 1 m, the datasheet's
+bound. A pixel nearer than ``min_range`` or past ``max_range`` is invalid (0, as librealsense
+writes it); so is a pixel at a depth edge (a 4-neighbour more than ``edge_jump`` times its own
+depth away: the stereo matcher's holes beside a foreground object, our choice 0.1); the rest is
+rounded to ``depth_unit``.
 
 Faults (:class:`CameraFaults`, drawn per frame from the generator seeded by ``seed``): a frame
 is lost with probability ``drop``; with probability ``spike`` it arrives ``spike_latency`` s
@@ -56,7 +56,7 @@ class DepthNoise:
     """
 
     k: float = D435_RMS * D435_AT / D435_AT**2
-    min_range: float = 0.105
+    min_range: float = 0.11
     max_range: float = 10.0
     depth_unit: float = 0.001
     edge_jump: float = 0.1
@@ -278,7 +278,7 @@ class CameraFaultRanges:
 
 def depth_error(camera: PlantDepthCamera, frames: int, at: float, env: int = 0) -> dict:
     """The camera's depth error over ``frames`` noisy frames of the scene as it stands, on the
-    pixels whose true depth is within 5 % of ``at`` m (a wall there): ``pixels`` counted,
+    pixels whose true depth is within 5 % of ``at`` m (a flat target there): ``pixels`` counted,
     ``rms_m``, ``rms_fraction`` (of ``at``) over the valid ones, ``invalid_fraction``.
 
     Raises:

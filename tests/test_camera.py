@@ -289,7 +289,8 @@ def test_policy_export_inspect_shows_the_image_input_and_its_block(go2, tmp_path
     assert "depth        float32  [batch, 2, 8, 10]" in out
     assert (
         "images: depth <- depth camera 'head_depth' 12x16 at 25 Hz, crop [0, 2, 1, 1] (top, "
-        "bottom, left, right), resize 8x10 bilinear, clip 0-3 m centered, 2 frames 2 apart"
+        "bottom, left, right), resize 8x10 bilinear, clip 0-3 m centered, 2 frames 2 apart, "
+        "latency 0 s"
     ) in out
 
 
@@ -383,3 +384,21 @@ def test_deploy_run_draws_the_runs_camera_faults_from_its_seed(tmp_path, capsys)
     assert json.loads(report.read_text())["camera"]["plant"]["faults"] == json.loads(
         json.dumps(drawn)
     )
+
+
+@needs_gl
+@pytest.mark.parametrize("trained", [0.3, 0.0])
+def test_a_camera_as_late_as_in_training_runs_and_one_later_than_its_spec_says_stops(
+    go2, tmp_path, trained
+):
+    """Robot Parkour Learning's Go1 student trains with frames 0.25-0.30 s late at 10 Hz."""
+    plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
+    policy = depth_policy(go2, tmp_path, replace(TINY, rate=10.0, latency=trained))
+    attach_depth_camera(plant, policy.spec, latency=0.3)
+    rt = Runtime(go2, policy, plant)
+    rt.start()
+    rt.run(50)
+    if trained:
+        assert (rt.mode == Mode.RUNNING).all() and rt.cameras.taken[0] >= 6
+    else:
+        assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"

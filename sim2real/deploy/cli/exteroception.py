@@ -35,7 +35,8 @@ def attach_camera(args, backend, spec) -> None:
     from sim2real.deploy.backends.sim.camera import CameraFaultRanges, attach_depth_camera
 
     if getattr(spec, "images", ()) and not (
-        (args.camera_rate is None or args.camera_rate > 0) and args.camera_latency >= 0
+        (args.camera_rate is None or args.camera_rate > 0)
+        and (args.camera_latency is None or args.camera_latency >= 0)
     ):
         raise ValueError(
             f"--camera-rate {args.camera_rate} Hz, --camera-latency {args.camera_latency} s: "

@@ -220,9 +220,10 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--camera-latency",
         type=float,
-        default=0.0,
+        default=None,
         metavar="S",
-        help="--backend sim: s from a frame's capture to its delivery (default 0)",
+        help="--backend sim: s from a frame's capture to its delivery (default the latency its "
+        "spec's images entry names)",
     )
     p.add_argument(
         "--camera-faults",

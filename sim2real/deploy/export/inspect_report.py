@@ -66,7 +66,8 @@ def image_text(block) -> str:
             f"{b['input']} <- depth camera '{b['camera']}' {b['shape'][0]}x{b['shape'][1]} at "
             f"{b['rate']:g} Hz, crop {list(b['crop'])} (top, bottom, left, right), resize "
             f"{b['resize'][0]}x{b['resize'][1]} {b['interpolation']}, clip {b['near']:g}-"
-            f"{b['far']:g} m {b['normalisation']}, {b['frames']} frames {b['skip']} apart"
+            f"{b['far']:g} m {b['normalisation']}, {b['frames']} frames {b['skip']} apart, "
+            f"latency {b['latency']:g} s"
         )
     except (TypeError, ValueError, IndexError, KeyError):
         return json.dumps(block)

@@ -19,8 +19,8 @@ first image at an episode's start).
 Stale: an env whose last fresh frame is older than its ``stale_limit`` (or that has had none
 ``stale_limit`` s after the stage's first tick: a camera streams before the loop starts) is
 safe-stopped (``stale_sensor``), as a silent IMU is. The limit is the robot's
-``Robot.stale_limit`` plus ``STALE_FRAMES`` frame periods of the block's rate (a 30 Hz camera is
-not stale between two frames; our choice: three frames lost in a row are).
+``Robot.stale_limit`` plus the block's training latency plus ``STALE_FRAMES`` frame periods of its
+rate (a 30 Hz camera is not stale between two frames; our choice: three frames lost in a row are).
 """
 
 from __future__ import annotations
@@ -189,5 +189,5 @@ def camera_stage(spec, envs: int, robot, backend) -> CameraInput | None:
     if len(images) > 1:
         raise ValueError(f"images: {len(images)} image blocks; the runtime reads one camera")
     block = images[0]
-    limit = float(robot.stale_limit) + STALE_FRAMES / block.rate
+    limit = float(robot.stale_limit) + block.latency + STALE_FRAMES / block.rate
     return CameraInput(block, envs, limit, getattr(backend, "camera_source", None))

@@ -20,7 +20,9 @@ frames, in this order (Extreme Parkour's student, ``legged_gym/envs/base/legged_
 The graph's input ``input`` is float32 (batch, frames, rows, columns), the oldest frame first
 (Extreme Parkour's ``depth_buffer``, ``buffer_len`` 2, appends the newest last); consecutive
 entries are ``skip`` delivered frames apart (1: every frame). ``rate`` is the camera's frame rate
-the policy was trained with (Extreme Parkour: ``update_interval`` 5 control ticks of 20 ms, 10 Hz).
+the policy was trained with (Extreme Parkour: ``update_interval`` 5 control ticks of 20 ms, 10 Hz),
+``latency`` the longest delay from a frame's capture to its use in training (s; Robot Parkour
+Learning's Go1 student trains with 0.25-0.30 s, ``go1_field_distill_config.py``).
 The camera's own geometry (the MJCF ``<camera>``'s pose and ``fovy``) is the robot description's.
 """
 
@@ -51,7 +53,8 @@ NORMALISATIONS = ("centered", "unit")
 #: The JSON Schema's words for a spec's ``images`` (sim2real/deploy/spec/schema.py).
 IMAGES_DESCRIPTION = (
     "Depth image inputs of the graph (sim2real/deploy/spec/camera.py DepthImageBlock: input, "
-    "camera, shape, crop, resize, interpolation, near, far, normalisation, frames, skip, rate); "
+    "camera, shape, crop, resize, interpolation, near, far, normalisation, frames, skip, rate, "
+    "latency); "
     "left out: none."
 )
 
@@ -79,6 +82,8 @@ class DepthImageBlock:
         frames: Frames of history the graph reads (>= 1). skip: Delivered frames between two
             entries of the history (>= 1).
         rate: The camera's frame rate in training, Hz (> 0).
+        latency: The longest capture-to-use delay in training, s (>= 0): the runtime's camera
+            is stale past the robot's stale limit plus it plus three frame periods.
     """
 
     input: str = "depth"
@@ -93,6 +98,7 @@ class DepthImageBlock:
     frames: int = EXTREME_PARKOUR_FRAMES
     skip: int = 1
     rate: float = EXTREME_PARKOUR_RATE
+    latency: float = 0.0
 
     @property
     def cropped(self) -> tuple[int, int]:
@@ -128,6 +134,8 @@ class DepthImageBlock:
             return [f"{where}: frames {self.frames}, skip {self.skip}; expected both >= 1"]
         if not (np.isfinite(self.rate) and self.rate > 0):
             return [f"{where}.rate: {self.rate} Hz, expected a positive frame rate"]
+        if not (np.isfinite(self.latency) and self.latency >= 0):
+            return [f"{where}.latency: {self.latency} s, expected >= 0"]
         if not self.input or not self.camera:
             return [f"{where}: input and camera need a name"]
         return []
@@ -156,7 +164,7 @@ class DepthImageBlock:
                     ):
                         raise TypeError(f"a list of integers, got {v!r}")
                     kw[k] = tuple(v)
-                elif k in ("near", "far", "rate"):
+                elif k in ("near", "far", "rate", "latency"):
                     if isinstance(v, bool) or not isinstance(v, int | float):
                         raise TypeError(f"a number, got {v!r}")
                     kw[k] = float(v)

@@ -127,7 +127,8 @@ class PlantDepthCamera:
     Args:
         plant: A simulated plant (its ``models``, ``datas``, ``envs``).
         block: The policy's image block (its ``camera`` and ``shape``).
-        rate: Frames per second (default the block's). latency: s from capture to delivery.
+        rate: Frames per second (default the block's). latency: s from capture to delivery
+            (default the block's).
         noise: The sensor model (default the D435's; None for :class:`DepthNoise`).
         faults: The session's faults (default none). seed: Of the noise and fault draws.
         where: Named in a refusal (the robot's MJCF).
@@ -144,7 +145,7 @@ class PlantDepthCamera:
         plant,
         block: DepthImageBlock,
         rate: float | None = None,
-        latency: float = 0.0,
+        latency: float | None = None,
         noise: DepthNoise | None = None,
         faults: CameraFaults | None = None,
         seed: int = 0,
@@ -152,11 +153,11 @@ class PlantDepthCamera:
     ):
         self.plant, self.block = plant, block
         self.rate = float(block.rate if rate is None else rate)
-        if not (self.rate > 0 and latency >= 0):
+        self.latency = float(block.latency if latency is None else latency)
+        if not (self.rate > 0 and self.latency >= 0):
             raise ValueError(
-                f"PlantDepthCamera: rate > 0 Hz, latency >= 0 s; got {rate}, {latency}"
+                f"PlantDepthCamera: rate > 0 Hz, latency >= 0 s; got {self.rate}, {self.latency}"
             )
-        self.latency = float(latency)
         self.noise = DepthNoise() if noise is None else noise
         self.faults = faults or CameraFaults()
         self.rng = np.random.default_rng(seed)
@@ -308,7 +309,7 @@ def attach_depth_camera(
     backend,
     spec,
     rate: float | None = None,
-    latency: float = 0.0,
+    latency: float | None = None,
     noise: DepthNoise | None = None,
     faults: CameraFaults | None = None,
     seed: int = 0,

@@ -402,3 +402,19 @@ def test_a_camera_as_late_as_in_training_runs_and_one_later_than_its_spec_says_s
         assert (rt.mode == Mode.RUNNING).all() and rt.cameras.taken[0] >= 6
     else:
         assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"
+
+
+def test_an_image_input_the_spec_does_not_name_is_refused_saying_how_to_name_it(go2, tmp_path):
+    import onnx
+
+    policy = depth_policy(go2, tmp_path)
+    model = onnx.load(policy.path)
+    del model.metadata_props[:]  # a foreign file: the spec comes from the user
+    bare = tmp_path / "bare.onnx"
+    onnx.save(model, bare)
+    with pytest.raises(PolicyLoadError) as err:
+        OnnxPolicy(bare, go2, spec=replace(policy.spec, images=()))
+    line = str(err.value)
+    assert "\n" not in line and "'depth' ['batch', 2, 8, 10]" in line
+    assert 'an "images" entry naming it (docs/cameras.md)' in line
+    assert OnnxPolicy(bare, go2, spec=policy.spec).images["depth"].shape == (1, 2, 8, 10)

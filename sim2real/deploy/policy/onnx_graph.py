@@ -109,8 +109,9 @@ def check_graph(
             f"'{inp.name}'. To load it: if the input is recurrent state, name it "
             "'<name>_in' with an output '<name>_out' of the same shape [layers, batch, "
             "hidden] (batch on axis 1); if it takes a constant (a mask, a dummy), add "
-            '"constant_inputs": {"' + unknown[0].name + '": VALUE} to the --spec file; '
-            "or export the policy with policy-export"
+            '"constant_inputs": {"' + unknown[0].name + '": VALUE} to the --spec file; if it '
+            'is a depth camera\'s image [batch, frames, rows, columns], an "images" entry '
+            "naming it (docs/cameras.md); or export the policy with policy-export"
         )
     constant_specs = {
         name: _constant_shape(path, vi, spec.constant_inputs.get(name, 0.0))

@@ -7,7 +7,8 @@ Each tick its ``source`` (a simulated plant's camera,
 frame) leaves the newest delivered frame in ``frame.depth_image`` ((envs, rows, columns) m) and
 its capture time in ``frame.depth_stamp`` ((envs,) s). A frame is fresh when its stamp is newer
 than the last one taken and its image is not the last one's again (a frozen driver repeats its
-buffer with new stamps; a real depth image never repeats bit for bit, its noise differs). A fresh
+buffer with new stamps; a real depth image never repeats bit for bit, its noise differs; a frame
+without one valid pixel, a view of open sky, may, and is fresh). A fresh
 frame is checked (:func:`sim2real.deploy.spec.camera.check_frames`: a non-numeric frame or one of
 another shape is refused in one line), preprocessed (:func:`sim2real.deploy.spec.camera.
 preprocess`) and pushed into the history; the graph's image input ((envs, frames, rows, columns),
@@ -85,7 +86,7 @@ class CameraInput:
             stamp = np.asarray(frame.depth_stamp, dtype=float)
             newer = stamp > self.stamp  # NaN: nothing delivered
             for e in np.flatnonzero(newer):
-                if np.array_equal(depth[e], self._raw[e]):  # frozen: the same image again
+                if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
                     self.repeated[e] += 1
                     continue
                 self._push(e, depth[e], stamp[e])

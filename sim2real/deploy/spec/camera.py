@@ -202,14 +202,19 @@ def check_frames(frames, block: DepthImageBlock, envs: int, where: str) -> np.nd
     """The batch of frames ``frames`` as float (envs, rows, columns) m, or a refusal.
 
     Raises:
-        CameraError: a non-numeric array (strings, objects, booleans) or another shape than
-            (envs, *block.shape), in one line naming ``where``, the camera and what was expected.
+        CameraError: a frame that is not floating-point metres (strings, objects, booleans, or
+            integer depth units such as a RealSense's uint16 millimetres, which would be read as
+            metres) or of another shape than (envs, *block.shape), in one line naming ``where``,
+            the camera and what was expected.
     """
     a = np.asarray(frames)
-    if a.dtype.kind not in "fiu":
+    if a.dtype.kind != "f":
+        unit = " (integer depth units: multiply by the device's depth scale)" * (
+            a.dtype.kind in "iu"
+        )
         raise CameraError(
             f"{where}: camera '{block.camera}' gave a frame of dtype {a.dtype}; expected depth "
-            "in metres as numbers (float or integer depth units)"
+            f"as floating-point metres{unit}"
         )
     if a.shape != (envs, *block.shape):
         raise CameraError(

@@ -113,6 +113,7 @@ class DepthRenderer:
     def close(self) -> None:
         """Free the GL context (the renderer is unusable after)."""
         if getattr(self, "_gl", None) is not None:
+            self._gl.make_current()  # free this context's buffers, not the current one's
             self._con.free()
             self._gl.free()
             self._gl = None

@@ -426,3 +426,19 @@ def test_an_image_input_the_spec_does_not_name_is_refused_saying_how_to_name_it(
     assert "\n" not in line and "'depth' ['batch', 2, 8, 10]" in line
     assert 'an "images" entry naming it (docs/cameras.md)' in line
     assert OnnxPolicy(bare, go2, spec=policy.spec).images["depth"].shape == (1, 2, 8, 10)
+
+
+@needs_gl
+def test_a_process_that_rendered_depth_can_still_import_torchs_compiler():
+    """Mesa's llvmpipe and triton each load an LLVM: triton imported second crashed the process
+    (a pytest worker with it); the renderer imports triton first where it is installed."""
+    pytest.importorskip("triton")
+    probe = (
+        "import mujoco; from sim2real.deploy.backends.sim.depth_render import DepthRenderer; "
+        'm = mujoco.MjModel.from_xml_string(\'<mujoco><worldbody><camera name="c"/>'
+        "</worldbody></mujoco>'); DepthRenderer(m, 'c', (4, 4), 'probe').render(mujoco.MjData(m)); "
+        "import triton; print('alive')"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True)
+    assert done.returncode == 0 and "alive" in done.stdout, done.stderr[-500:]

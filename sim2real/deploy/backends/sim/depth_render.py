@@ -6,11 +6,16 @@ Linux machine without a display, EGL (Mesa's ``libEGL``; Debian ``libegl1 libgl1
 (``near / (1 - z (1 - near / far))`` with ``near``, ``far`` the model's ``vis.map.znear``,
 ``zfar`` times ``stat.extent``): metres along the camera's optical axis, the z-depth a RealSense
 reports. A ray that meets nothing reads ``far``.
+
+Mesa's software renderer (llvmpipe) and triton (torch's compiler) each load their own LLVM; a
+process that has loaded Mesa's first crashes (segfault) when it imports triton. Where triton is
+installed, :class:`DepthRenderer` imports it before it makes its first context (0.2 s, once).
 """
 
 from __future__ import annotations
 
 import copy
+import importlib.util
 import os
 import sys
 
@@ -35,6 +40,13 @@ def camera_id(model: mujoco.MjModel, name: str, where: str) -> int:
             "add one to the robot's MJCF or name one it has"
         )
     return cid
+
+
+def _triton_first() -> None:
+    """Import triton, where it is installed, before any OpenGL context loads Mesa's LLVM
+    (module docstring)."""
+    if importlib.util.find_spec("triton") is not None:
+        import triton  # noqa: F401
 
 
 def _context_class():
@@ -72,6 +84,7 @@ class DepthRenderer:
         vis = model.vis.global_
         vis.offwidth, vis.offheight = cols, rows
         model.vis.quality.offsamples = 0
+        _triton_first()
         try:
             self._gl = _context_class()(cols, rows)
             self._gl.make_current()

@@ -23,5 +23,7 @@ Items, one module each (its docstring says how it measures):
   share of physics-only stepping kept;
 - ``wallclock`` (:mod:`bench.session`): ``deploy-run --realtime`` per wait mode and scheduler;
 - ``bus`` (:mod:`bench.bus`): a servo-bus tick through the vendor SDK against the emulator;
+- ``camera`` (:mod:`bench.camera_cost`): a depth camera's render per frame and its noise model's
+  error at 1 m and 2 m;
 - ``profile`` (:mod:`bench.profiling`, only with ``--only profile``): cProfile of the runtime.
 """

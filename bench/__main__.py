@@ -8,7 +8,7 @@ Usage::
 
 Items (default: all but ``profile``, in this order; see bench/__init__.py for what each
 measures, docs/speed.md for the JSON layout): plant, inference, tick, session, campaign,
-wallclock, busy, ros2, bus, profile.
+wallclock, busy, ros2, bus, camera, profile.
 ``--quick`` shortens every item to a few seconds (a smoke test; its percentiles are rough).
 With ``--only``, sections of an existing results file that were not run are kept (each section
 records when it was measured and whether it was quick). The targets (:data:`bench.targets.TARGETS`) are
@@ -62,6 +62,7 @@ ITEMS = (
     "busy",
     "ros2",
     "bus",
+    "camera",
     "profile",
 )
 DEFAULT_ITEMS = ITEMS[:-1]
@@ -79,6 +80,7 @@ FULL = {
     "busy_s": 30.0,
     "ros2_s": 30.0,
     "bus_ticks": 3_000,
+    "camera_frames": 300,
     "profile_ticks": 5_000,
 }
 QUICK = {
@@ -93,6 +95,7 @@ QUICK = {
     "busy_s": 2.0,
     "ros2_s": 3.0,
     "bus_ticks": 200,
+    "camera_frames": 20,
     "profile_ticks": 1_000,
 }
 
@@ -314,6 +317,10 @@ def _measure(item: str, args, fx: _Fixtures) -> dict:
         from bench import bus
 
         return bus.run(cfg["bus_ticks"])
+    if item == "camera":
+        from bench import camera_cost
+
+        return camera_cost.measure(fx.tmp / "camera", cfg["camera_frames"])
     from bench import profiling
 
     return {

@@ -215,6 +215,11 @@ def render(results: dict) -> str:
                 f"{r['sustained_hz']:>7.0f} {r['wire_model_us']:>8.0f}"
             )
 
+    if _ran(sec, "camera", add):
+        from bench.camera_cost import render_lines
+
+        render_lines(sec["camera"], add)
+
     for robot, pr in sec.get("profile", {}).get("robots", {}).items():
         add("")
         add(f"== profile: {robot}, cProfile over {pr['ticks']} ticks, most own time first")

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.backends.registry import make_backend
+from sim2real.deploy.cli.exteroception import attach_camera, attach_height_map, camera_report
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
 from sim2real.deploy.cli.run_operator import (
@@ -105,7 +106,8 @@ def run(args) -> int:
     mapping = operator_mapping(args)  # the mapping and its source's file, not its device
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
-    _attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
+    attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
+    attach_camera(args, backend, policy.spec)  # an image input: the plant's MJCF camera
     check_drive_applied(drive, simulated or getattr(backend, "commands_gains", False), args.backend)
     for line in drive.values():
         print(
@@ -126,19 +128,6 @@ def run(args) -> int:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
         backend.close()  # servo bus: torque off; Unitree: damped
-
-
-def _attach_height_map(args, backend, spec) -> None:
-    """A policy with a ``height_scan`` block on the plant: its ray casts as the elevation map,
-    with noise, latency, dropout and drift drawn from ``--seed``
-    (:mod:`sim2real.deploy.backends.sim.height_scan`), said on stderr."""
-    from sim2real.deploy.backends.sim.height_scan import HeightScanRanges, attach_height_scanner
-
-    noise = HeightScanRanges().sample(np.random.default_rng(args.seed))
-    if attach_height_scanner(backend, spec, noise, args.seed) is not None:
-        print(
-            f"deploy-run: height scan: ray casts on the plant, {noise.to_dict()}", file=sys.stderr
-        )
 
 
 def run_policies(args, robot) -> dict:
@@ -365,6 +354,7 @@ def run_report(args, rig, wall: float, realtime: bool, injector, clock) -> dict:
         "final_cause": rt.cause_names(),
         "tick_cost_us": rt.tick_cost.summary(),
         "height_map": rt.height_map.summary() if rt.height_map is not None else None,
+        "camera": camera_report(rt, backend),
         "stage_cost_us": {s: rt.latency.summary(i) for i, s in enumerate(STAGES)},
         "deadline": {
             "overruns": clock.overruns,

@@ -227,6 +227,29 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         "slope_down:15deg, rough_slope@5, discrete:0.10; sim2real/eval/world/terrain.py)",
     )
     p.add_argument(
+        "--camera-rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="--backend sim, a policy with a depth image input: the camera's frame rate "
+        "(default the rate its spec's images entry names; sim2real/deploy/backends/sim/camera.py)",
+    )
+    p.add_argument(
+        "--camera-latency",
+        type=float,
+        default=None,
+        metavar="S",
+        help="--backend sim: s from a frame's capture to its delivery (default the latency its "
+        "spec's images entry names)",
+    )
+    p.add_argument(
+        "--camera-faults",
+        choices=("none", "drawn"),
+        default="none",
+        help="--backend sim: 'drawn', the run's camera faults (dropped, late and frozen frames, "
+        "a covered lens, a knocked mount) drawn from --seed (CameraFaultRanges); default none",
+    )
+    p.add_argument(
         "--motion-start-after",
         type=float,
         default=0.0,

@@ -47,7 +47,30 @@ def spec_summary(text: str, where: str) -> dict[str, Any]:
             "action": f"{action.get('mode')} [{action.get('size')}], clip {action.get('clip')}",
             "history": history_text(raw.get("history"), blocks),
         }
+        images = raw.get("images") or []
+        if images:  # a camera policy's image inputs (sim2real.deploy.spec.camera)
+            out["summary"]["images"] = [image_text(b) for b in images]
     return out
+
+
+def image_text(block) -> str:
+    """One line of a spec's image block (its JSON: a :class:`~sim2real.deploy.spec.camera.
+    DepthImageBlock`): input, camera, frame, crop, resize, clip, normalisation, history, rate."""
+    from sim2real.deploy.spec.camera import DepthImageBlock
+
+    if not isinstance(block, Mapping):
+        return f"{block!r} (not a table)"
+    b = {**DepthImageBlock().to_dict(), **block}
+    try:
+        return (
+            f"{b['input']} <- depth camera '{b['camera']}' {b['shape'][0]}x{b['shape'][1]} at "
+            f"{b['rate']:g} Hz, crop {list(b['crop'])} (top, bottom, left, right), resize "
+            f"{b['resize'][0]}x{b['resize'][1]} {b['interpolation']}, clip {b['near']:g}-"
+            f"{b['far']:g} m {b['normalisation']}, {b['frames']} frames {b['skip']} apart, "
+            f"latency {b['latency']:g} s"
+        )
+    except (TypeError, ValueError, IndexError, KeyError):
+        return json.dumps(block)
 
 
 def history_text(history, blocks) -> str:

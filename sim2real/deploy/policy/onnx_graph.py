@@ -78,15 +78,21 @@ def check_graph(
     if not inputs:
         raise PolicyLoadError(f"{path}: the graph has no data input")
     names = [i.name for i in inputs]
-    inp = inputs[0] if len(inputs) == 1 else inputs[names.index("obs") if "obs" in names else 0]
+    image_names = {b.input for b in spec.images}
+    _check_images(path, spec, inputs)
+    vector = [i for i in inputs if i.name not in image_names] or inputs
+    vnames = [i.name for i in vector]
+    inp = vector[0] if len(vector) == 1 else vector[vnames.index("obs") if "obs" in vnames else 0]
     outputs = {o.name: o for o in graph.output}
     pairs: list[tuple[onnx.ValueInfoProto, onnx.ValueInfoProto]] = []
     unknown = []
     constants: dict[str, onnx.ValueInfoProto] = {}
     godot = inp.name == "obs" and GODOT_STATE[0] in names and GODOT_STATE[1] in outputs
     for i in graph.input:
-        if i.name == inp.name or (
-            i.name in init_names and _state_output_name(i.name) not in outputs
+        if (
+            i.name == inp.name
+            or i.name in image_names
+            or (i.name in init_names and _state_output_name(i.name) not in outputs)
         ):
             continue
         out_name = _state_output_name(i.name)
@@ -103,8 +109,9 @@ def check_graph(
             f"'{inp.name}'. To load it: if the input is recurrent state, name it "
             "'<name>_in' with an output '<name>_out' of the same shape [layers, batch, "
             "hidden] (batch on axis 1); if it takes a constant (a mask, a dummy), add "
-            '"constant_inputs": {"' + unknown[0].name + '": VALUE} to the --spec file; '
-            "or export the policy with policy-export"
+            '"constant_inputs": {"' + unknown[0].name + '": VALUE} to the --spec file; if it '
+            'is a depth camera\'s image [batch, frames, rows, columns], an "images" entry '
+            "naming it (docs/cameras.md); or export the policy with policy-export"
         )
     constant_specs = {
         name: _constant_shape(path, vi, spec.constant_inputs.get(name, 0.0))
@@ -127,6 +134,32 @@ def check_graph(
     fixed = in_dims[0] if in_dims and isinstance(in_dims[0], int) and in_dims[0] > 0 else 0
     states = tuple(_check_state(path, i, o, fixed, init.get(i.name)) for i, o in pairs)
     return inp.name, out.name, fixed, states, constant_specs
+
+
+def _check_images(path: Path, spec: PolicySpec, inputs) -> None:
+    """Each of the spec's image blocks is a float32 graph input (batch, frames, rows, columns)
+    of its shape (``PolicyLoadError`` naming the input, its shape and the spec's where not)."""
+    by_name = {i.name: i for i in inputs}
+    for k, block in enumerate(spec.images):
+        vi = by_name.get(block.input)
+        if vi is None:
+            raise PolicyLoadError(
+                f"{path}: the spec's images[{k}].input '{block.input}' is not a graph input "
+                f"(its inputs: {list(by_name)})"
+            )
+        dims = _dims(vi)
+        fixed = [(d, w) for d, w in zip(dims[1:], block.input_shape, strict=False)]
+        if (
+            vi.type.tensor_type.elem_type != TensorProto.FLOAT
+            or len(dims) != 4
+            or any(isinstance(d, int) and d != want for d, want in fixed)
+        ):
+            raise PolicyLoadError(
+                f"{path}: graph input '{block.input}' is "
+                f"{TensorProto.DataType.Name(vi.type.tensor_type.elem_type).lower()} {dims}; the "
+                f"spec's images[{k}] expects float [batch, frames, rows, columns] = "
+                f"[batch, {', '.join(str(d) for d in block.input_shape)}]"
+            )
 
 
 def _action_output(path: Path, graph, state_outs: set[str]):

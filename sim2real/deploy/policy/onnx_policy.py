@@ -9,6 +9,10 @@ outputs or recurrent state the spec does not describe (:mod:`sim2real.deploy.pol
 action that is not finite for the zero observation or, for a foreign file (an export's parity gate
 already probed ours), for every entry at -1, at +1 and 29 uniform draws in [-1, 1].
 
+A spec's image inputs (``images``: a depth camera's frames, :mod:`sim2real.deploy.spec.camera`)
+are bound arrays, :attr:`OnnxPolicy.images` (float32 ``(envs, frames, rows, columns)``), that the
+runtime's camera stage writes before each call (zeros until then).
+
 Observations are float32 ``(envs, obs_dim)``, actions float32 ``(envs, act_dim)`` in the spec's
 ``joint_names`` order (a spec's ``action.joints`` reorders the graph's outputs). A recurrent
 policy keeps each env's state (``[layers, envs, hidden]`` float32), feeds ``<name>_out`` back as
@@ -109,6 +113,7 @@ class OnnxPolicy:
         #: (None: nothing to do, a feed-forward policy in the spec's joint order)
         self._finish = None if (self._joints is None and not self.states) else self._finish_call
         self._batch = -1
+        self.images: dict[str, np.ndarray] = {}
         #: the array bound as the graph's input: ``_obs`` (a caller's observation copied in) or
         #: the caller's own array, read in place (:meth:`__call__`); and the last one seen
         self._input = self._seen = None
@@ -161,6 +166,8 @@ class OnnxPolicy:
             feeds[name] = np.full([batch if d is None else d for d in shape], value, dtype)
         for s in self.states:
             feeds[s.input] = np.zeros((s.layers, batch, s.hidden), np.float32)
+        for b in self.spec.images:
+            feeds[b.input] = np.zeros((batch, *b.input_shape), np.float32)
         try:
             outs = self.session.run([s.output for s in self.states], feeds)
         except Exception as exc:  # noqa: BLE001
@@ -196,6 +203,14 @@ class OnnxPolicy:
         self._input, self._seen = self._obs, None
         self._binding.bind_ortvalue_output(self.output_name, self._action_value)
         self._constant_values = []  # keep the OrtValues alive with the binding
+        #: the image inputs (spec ``images``), float32 (batch, frames, rows, columns), bound:
+        #: the runtime's camera stage writes each tick's image into them in place
+        self.images = {
+            b.input: np.zeros((batch, *b.input_shape), np.float32) for b in self.spec.images
+        }
+        for name, array in self.images.items():
+            self._constant_values.append(ort.OrtValue.ortvalue_from_numpy(array))
+            self._binding.bind_ortvalue_input(name, self._constant_values[-1])
         for name, (shape, dtype, value) in self._constant_specs.items():
             array = np.full([batch if d is None else d for d in shape], value, dtype)
             self._constant_values.append(ort.OrtValue.ortvalue_from_numpy(array))

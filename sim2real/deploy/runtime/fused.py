@@ -131,6 +131,8 @@ class TableCalls:
             self._kinematics = Kinematics(self.robot)
         kin, plan = self._kinematics, spec.plan
         self._fused = False
+        if getattr(self, "cameras", None) is not None:  # the image stage runs between them
+            return
         if state.base is not None or not plan.compiled or not (kin.compiled or kin.frame_id < 0):
             return
         if plan.history is not None:  # its frames stack after the observation kernel: separate

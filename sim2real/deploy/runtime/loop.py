@@ -29,10 +29,10 @@ from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kinds import robot_kind
 from sim2real.deploy.observe import long_ticks as lt
 from sim2real.deploy.runtime.anchoring import reanchor, tracking_tolerance
+from sim2real.deploy.runtime.camera import exteroception
 from sim2real.deploy.runtime.clock import SimClock
 from sim2real.deploy.runtime.compiled import CompiledSupervision
 from sim2real.deploy.runtime.handover import RampIn, check_policy, follows_targets, switch_policy
-from sim2real.deploy.runtime.height_map import height_map_stage
 from sim2real.deploy.runtime.run_loop import RunLoop
 from sim2real.deploy.runtime.stale import StaleStops
 from sim2real.deploy.runtime.state import RuntimeState
@@ -54,11 +54,9 @@ class Runtime:
         robot: Robot description.
         policy: Callable ``(envs, obs_dim) float32 -> (envs, act_dim) float32`` with a ``spec``
             attribute (:class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`); its ``reset(envs)``
-            (boolean mask (envs,)), if it has one, is called where the policy's state must start
-            afresh.
+            (boolean mask (envs,)), if it has one, is called where its state must start afresh.
         backend: A :class:`~sim2real.deploy.core.backend.Backend` (``read``, ``write``, ``advance``,
-            ``drive_errors``), opened: :class:`~sim2real.deploy.backends.sim.plant.SimBackend` or a servo
-            bus.
+            ``drive_errors``), opened: :class:`~sim2real.deploy.backends.sim.plant.SimBackend` or a servo bus.
         clock: :class:`SimClock` (default) or :class:`WallClock`.
         injector: Optional :class:`~sim2real.deploy.backends.sim.faults.FaultInjector` (simulation only).
         telemetry: Optional :class:`~sim2real.deploy.observe.telemetry.Telemetry` recorder.
@@ -129,8 +127,8 @@ class Runtime:
         #: a tracking policy's clip (RobotState.motion): the warm-up's placeholder; its task's after
         self.state.motion = motion_buffer(self.spec, envs, n)
         self.goal = np.zeros((envs, 3))
-        #: a height_scan policy: its elevation map (stale: a safe stop; else None)
-        self.height_map = height_map_stage(self.spec, self.state, envs, robot, backend)
+        #: a height_scan policy's elevation map, an image input's camera (stale: a safe stop)
+        self.height_map, self.cameras = exteroception(self.spec, self.state, envs, robot, backend)
         #: the tick's part the kind's base adds (a floating base: kinds.legged_tick) and its
         #: stages: the base estimate (IMU, leg kinematics) and the fall check (None: an arm)
         self.base_tick = kind.tick_stage(self)
@@ -197,7 +195,7 @@ class Runtime:
         self._compiled = self._compile()
         self.state.motion = None  # never a zero clip: the motion task writes the reference
         #: a fixed base on the compiled path: estimate and observe in one call (_estimate_observe)
-        self._fused = self._compiled is not None and self.base_tick.fusable
+        self._fused = self._compiled is not None and self.base_tick.fusable and self.cameras is None
         self._idle = np.zeros(envs, dtype=bool)  # the envs not RUNNING at the tick's end
         self._idle_rows = self._idle[:, None]  # its view over the joints (no index array)
         self._running = np.zeros(envs, dtype=bool)  # the tick's RUNNING envs (follow)
@@ -392,6 +390,8 @@ class Runtime:
             state = self.estimator.update(frame, self.state, self._input)
             self.kinematics.update(state)
             self.base_tick.update(frame, state)  # a floating base: IMU, contacts, clock; falls
+            if self.cameras is not None:  # the image input, into the policy's bound array
+                self.cameras.feed(frame, self.policy, self.supervision)
             self._supervise(state, drive_errors)  # with the thermal derating of the effort limits
             st[2] = clock_ns()
             obs = self._observe(state)

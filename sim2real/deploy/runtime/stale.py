@@ -51,8 +51,9 @@ class StaleStops:
             ``stale_limit_s``, ``without_reading_s`` (s, the longest of the stale sensors),
             ``joints`` (name -> s without a fresh reading, the stale joints), ``imu_s`` (s, the
             IMU's, where it was stale, else None), ``height_map_s`` (s, the elevation map's,
-            likewise), ``this_tick`` (the frame's readings of those
-            joints), ``our_side``, ``other_side`` (the backend's context) and ``verdict``.
+            likewise), ``camera_s`` (s, the camera's last fresh frame's age where it was past
+            its own limit, :mod:`sim2real.deploy.runtime.camera`), ``this_tick`` (the frame's
+            readings of those joints), ``our_side``, ``other_side`` (the backend's context) and ``verdict``.
         dropped: Stale stops past ``MAX_RECORDS``, counted only.
     """
 
@@ -86,11 +87,17 @@ class StaleStops:
         map_s, height_map = None, getattr(rt, "height_map", None)
         if height_map is not None and height_map.time_since_fresh[e] > limit:
             map_s = float(height_map.time_since_fresh[e])
-        without = max([*joints.values(), imu_s or 0.0, map_s or 0.0])
+        camera_s, cameras = None, getattr(rt, "cameras", None)
+        if cameras is not None and cameras.stale[e]:
+            camera_s = float(cameras.time_since_fresh[e])
+        without = max([*joints.values(), imu_s or 0.0, map_s or 0.0, camera_s or 0.0])
         this_tick = self._frame_view(e, stale)
         ours = self._our_side(without)
         other = stale_context(rt.backend, e)
         other["joints"] = {n: t for n, t in other.get("joints", {}).items() if n in joints}
+        if camera_s is not None and not joints and imu_s is None and map_s is None:
+            stream = f"depth camera '{cameras.block.camera}'"  # frozen or silent
+            other.update(stream=stream, other_side=cameras.stale_phrase(e))
         return {
             "tick": int(rt.ticks),
             "t_s": round(float(rt.time), 6),
@@ -102,6 +109,7 @@ class StaleStops:
             "joints": {n: _finite(a) for n, a in joints.items()},
             "imu_s": _finite(imu_s),
             "height_map_s": _finite(map_s),
+            "camera_s": _finite(camera_s),
             "this_tick": this_tick,
             "our_side": ours,
             "other_side": other,

@@ -101,6 +101,8 @@ class RuntimeState:
         parts.update(rt.base_tick.parts())  # a floating base's estimator and fall check
         if rt.height_map is not None:  # a policy with a height scan: its elevation map
             parts["height_map"] = rt.height_map
+        if getattr(rt, "cameras", None) is not None:  # a policy with an image input
+            parts["camera"] = rt.cameras
         for name, part in (
             ("policy", rt.policy),
             ("backend", rt.backend),

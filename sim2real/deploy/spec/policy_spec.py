@@ -37,6 +37,7 @@ import numpy as np
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.spec.block_checks import observation_problems
+from sim2real.deploy.spec.camera import DepthImageBlock
 from sim2real.deploy.spec.drive import DriveSpec
 from sim2real.deploy.spec.height_scan import HeightScanPattern
 from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
@@ -205,6 +206,9 @@ class PolicySpec:
             JSON key ``drive``, left out when None).
         history: The frame history the graph reads (:class:`sim2real.deploy.spec.history.
             ObservationHistory`: ticks, order, layout, fill); None: one frame, the present.
+        images: The graph's image inputs besides the observation vector
+            (:class:`sim2real.deploy.spec.camera.DepthImageBlock`: camera, shape, crop, resize,
+            clip, normalisation, frames and skip; JSON key ``images``, left out when empty).
 
     ``robot_hash`` may be empty (a spec written by hand for a policy trained elsewhere): the
     description hash is then not checked.
@@ -222,6 +226,7 @@ class PolicySpec:
     constant_inputs: dict[str, float] = field(default_factory=dict)
     drive: DriveSpec | None = None
     history: ObservationHistory | None = None
+    images: tuple[DepthImageBlock, ...] = ()
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -329,6 +334,12 @@ class PolicySpec:
                 )
         if self.history is not None:
             problems += self.history.problems(len(self.observation_blocks))
+        for i, image in enumerate(self.images):
+            problems += image.problems(f"images[{i}]")
+        if len({b.input for b in self.images}) < len(self.images):
+            problems.append(
+                f"images: two blocks name one graph input: {[b.input for b in self.images]}"
+            )
         if problems:
             raise SpecError(problems[0])
         for name, value in self.constant_inputs.items():
@@ -468,6 +479,8 @@ class PolicySpec:
             del d["drive"]
         else:
             d["drive"] = {k: v for k, v in d["drive"].items() if v}
+        if not d["images"]:
+            del d["images"]
         if d["history"] is None:
             del d["history"]
         elif not d["history"]["lengths"]:

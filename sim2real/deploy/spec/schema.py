@@ -32,6 +32,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from sim2real.deploy.spec.camera import IMAGES_DESCRIPTION, CameraError, image_blocks
 from sim2real.deploy.spec.drive import DriveSpec
 from sim2real.deploy.spec.height_scan import HeightScanPattern
 from sim2real.deploy.spec.history import FILLS, LAYOUTS, ORDERS, ObservationHistory
@@ -308,6 +309,7 @@ class PolicySpecDocument(_Doc):
         default=None,
         description="The frame history the graph reads; left out: the present frame only.",
     )
+    images: list[dict[str, Any]] = Field(default_factory=list, description=IMAGES_DESCRIPTION)
 
 
 def parse_spec(text: str, source: str = "spec") -> PolicySpec:
@@ -336,7 +338,7 @@ def parse_spec(text: str, source: str = "spec") -> PolicySpec:
     try:
         spec = to_spec(doc)
         spec.validate()
-    except SpecError as exc:
+    except (SpecError, CameraError) as exc:  # CameraError: an images entry (to_spec)
         raise SpecError(f"{source}: {exc}") from None
     return spec
 
@@ -345,7 +347,8 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
     """The :class:`PolicySpec` of a parsed document, shorthands expanded (not yet validated).
 
     Raises:
-        SpecError: a joint named in ``joints`` that is not in ``joint_names``.
+        SpecError: a joint named in ``joints`` that is not in ``joint_names``. CameraError: an
+            ``images`` entry :func:`~sim2real.deploy.spec.camera.image_blocks` refuses.
     """
     names = tuple(doc.joint_names)
     n = len(names)
@@ -391,6 +394,7 @@ def to_spec(doc: PolicySpecDocument) -> PolicySpec:
             fill=doc.history.fill,
             lengths=tuple(doc.history.lengths or ()),
         ),
+        images=image_blocks(doc.images),
     )
 
 

@@ -1,0 +1,194 @@
+"""The runtime's camera input (:class:`CameraInput`): the depth frames a policy's image block
+reads, the last one delivered and its age, the frame history the graph takes, and a camera
+judged stale like any sensor.
+
+Each tick its ``source`` (a simulated plant's camera,
+:class:`sim2real.deploy.backends.sim.camera.PlantDepthCamera`; on hardware a driver writing the
+frame) leaves the newest delivered frame in ``frame.depth_image`` ((envs, rows, columns) m) and
+its capture time in ``frame.depth_stamp`` ((envs,) s). A frame is fresh when its stamp is newer
+than the last one taken and its image is not the last one's again (a frozen driver repeats its
+buffer with new stamps; a real depth image never repeats bit for bit, its noise differs; a frame
+without one valid pixel, a view of open sky, may, and is fresh). A fresh
+frame is checked (:func:`sim2real.deploy.spec.camera.check_frames`: a non-numeric frame or one of
+another shape is refused in one line), preprocessed (:func:`sim2real.deploy.spec.camera.
+preprocess`) and pushed into the history; the graph's image input ((envs, frames, rows, columns),
+oldest first, ``skip`` delivered frames apart) is written in place into the array the policy
+binds (``policy.images[block.input]``). Until an env has the history's span of frames, its oldest
+entries repeat its first frame (Extreme Parkour fills its ``depth_buffer`` with copies of the
+first image at an episode's start).
+
+Stale: an env whose last fresh frame is older than its ``stale_limit`` (or that has had none
+``stale_limit`` s after the stage's first tick: a camera streams before the loop starts) is
+safe-stopped (``stale_sensor``), as a silent IMU is. The limit is the robot's
+``Robot.stale_limit`` plus the block's training latency plus ``STALE_FRAMES`` frame periods of its
+rate (a 30 Hz camera is not stale between two frames; our choice: three frames lost in a row are).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.runtime.height_map import height_map_stage
+from sim2real.deploy.spec.camera import DepthImageBlock, check_frames, preprocess
+
+#: Frame periods past the robot's stale limit before a camera is stale (module docstring).
+STALE_FRAMES = 3
+
+
+class CameraInput:
+    """The depth image input of ``envs`` robots (module docstring).
+
+    Args:
+        block: The policy's image block. envs: Robots.
+        stale_limit: s, a camera whose last fresh frame is older stops the robot.
+        source: ``fill(frame)`` writing the frame's depth image each tick, or None (the backend
+            writes the frame itself).
+
+    Attributes:
+        image: float32 (envs, frames, rows, columns), the graph's image input of the last tick.
+        stamp: (envs,) s, the last fresh frame's capture time (-inf: none yet).
+        time_since_fresh: (envs,) s, since that frame (none yet: since the first tick).
+        stale: (envs,) bool, this tick's.
+        taken: (envs,) int64 fresh frames taken. repeated: (envs,) int64 frames that came again
+            with a new stamp (frozen). oldest: (envs,) s, the largest age after the first frame.
+    """
+
+    def __init__(self, block: DepthImageBlock, envs: int, stale_limit: float, source=None):
+        self.block, self.envs, self.stale_limit, self.source = block, envs, stale_limit, source
+        span = (block.frames - 1) * block.skip + 1
+        self._ring = np.zeros((envs, span, *block.resize), np.float32)
+        self._raw = np.full((envs, *block.shape), np.nan, np.float32)  # the last raw frame taken
+        self.image = np.zeros((envs, *block.input_shape), np.float32)
+        self.stamp = np.full(envs, -np.inf)
+        self._start = np.nan  # the first tick's time: a camera's first frame is due by then
+        self.time_since_fresh = np.full(envs, np.inf)
+        self.stale = np.zeros(envs, dtype=bool)
+        self.taken = np.zeros(envs, dtype=np.int64)
+        self.repeated = np.zeros(envs, dtype=np.int64)
+        self.oldest = np.zeros(envs)
+        #: ring positions of the graph's frames, oldest first, relative to the newest
+        self._back = block.skip * np.arange(block.frames - 1, -1, -1)
+
+    def update(self, frame, images: np.ndarray | None = None) -> np.ndarray:
+        """Take the frame's depth image where it is fresh, write the graph's image input into
+        :attr:`image` and into ``images`` (the policy's bound input) when given; returns
+        :attr:`stale`.
+
+        Raises:
+            CameraError: a non-numeric frame or one of another shape (module docstring).
+        """
+        if self.source is not None:
+            self.source.fill(frame)
+        depth = getattr(frame, "depth_image", None)
+        if depth is not None:
+            depth = check_frames(depth, self.block, self.envs, "frame.depth_image")
+            stamp = np.asarray(frame.depth_stamp, dtype=float)
+            newer = stamp > self.stamp  # NaN: nothing delivered
+            for e in np.flatnonzero(newer):
+                if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
+                    self.repeated[e] += 1
+                    continue
+                self._push(e, depth[e], stamp[e])
+        if np.isnan(self._start):
+            self._start = float(np.min(frame.time))
+        np.subtract(frame.time, np.maximum(self.stamp, self._start), out=self.time_since_fresh)
+        np.maximum(
+            self.oldest, np.where(self.taken > 0, self.time_since_fresh, 0.0), out=self.oldest
+        )
+        np.greater(self.time_since_fresh, self.stale_limit, out=self.stale)
+        if images is not None and images is not self.image:
+            images[:] = self.image
+        return self.stale
+
+    def feed(self, frame, policy, supervision) -> None:
+        """The tick's :meth:`update`, written into ``policy.images[block.input]`` (the array an
+        :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` binds), and the safe stop
+        (``stale_sensor``) of the envs whose camera is stale."""
+        images = getattr(policy, "images", {}).get(self.block.input)
+        supervision.safe_stop(self.update(frame, images), "stale_sensor")
+
+    def _push(self, e: int, depth: np.ndarray, stamp: float) -> None:
+        span = self._ring.shape[1]
+        image = preprocess(depth[None], self.block)[0]
+        if self.taken[e] == 0:  # the first frame fills the history
+            self._ring[e] = image
+        else:
+            self._ring[e, self.taken[e] % span] = image
+        self.taken[e] += 1
+        self._raw[e] = depth
+        self.stamp[e] = stamp
+        newest = (self.taken[e] - 1) % span
+        self.image[e] = self._ring[e, (newest - self._back) % span]
+
+    def stale_phrase(self, e: int) -> str:
+        """What env ``e``'s camera did, for a stale stop's verdict: frames repeated (frozen) or
+        none fresh."""
+        if self.repeated[e]:
+            return f"{int(self.repeated[e])} frames repeated with new stamps (frozen)"
+        return "no fresh frame arrived (dropped or late)"
+
+    def reset(self, envs: np.ndarray) -> None:
+        """Start the history of the envs of ``envs`` (bool mask) again: their next fresh frame
+        fills it (their stamps and counts are kept). The runtime does not call it at a restart:
+        the history then refills within ``frames x skip`` frames."""
+        envs = np.asarray(envs, dtype=bool)
+        self.taken[envs] = 0
+        self._raw[envs] = np.nan
+
+    def summary(self) -> dict:
+        """The run report's lines: the camera, frames taken and repeated, the oldest age, s."""
+        return {
+            "camera": self.block.camera,
+            "stale_limit_s": self.stale_limit,
+            "frames_taken": self.taken.tolist(),
+            "frames_repeated": self.repeated.tolist(),
+            "oldest_s": [round(float(v), 6) for v in self.oldest],
+        }
+
+    def _fields(self) -> dict:
+        return {
+            "ring": self._ring,
+            "raw": self._raw,
+            "image": self.image,
+            "stamp": self.stamp,
+            "taken": self.taken,
+            "repeated": self.repeated,
+            "oldest": self.oldest,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The history, the last frame, its stamp and the counts (copies, leading env axis;
+        :mod:`sim2real.deploy.core.stateful`)."""
+        return take(self._fields(), env)
+
+    def load_state_dict(self, state, env: int | None = None) -> None:
+        """Raises StateDictError: a missing field or another shape (nothing written)."""
+        put(self._fields(), state, env)
+
+
+def exteroception(spec, state, envs: int, robot, backend) -> tuple:
+    """The runtime's exteroceptive stages: ``(height map, camera)``, each None where the spec
+    has no such input (:func:`sim2real.deploy.runtime.height_map.height_map_stage`,
+    :func:`camera_stage`)."""
+    return (
+        height_map_stage(spec, state, envs, robot, backend),
+        camera_stage(spec, envs, robot, backend),
+    )
+
+
+def camera_stage(spec, envs: int, robot, backend) -> CameraInput | None:
+    """The runtime's :class:`CameraInput` for a spec with an image block (its source the
+    backend's ``camera_source`` where it has one), else None.
+
+    Raises:
+        ValueError: a spec with more than one image block (one camera per policy for now).
+    """
+    images = getattr(spec, "images", ())
+    if not images:
+        return None
+    if len(images) > 1:
+        raise ValueError(f"images: {len(images)} image blocks; the runtime reads one camera")
+    block = images[0]
+    limit = float(robot.stale_limit) + block.latency + STALE_FRAMES / block.rate
+    return CameraInput(block, envs, limit, getattr(backend, "camera_source", None))

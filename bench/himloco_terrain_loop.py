@@ -16,7 +16,9 @@ decimation`` s; ``target = default_dof_pos + action_scale x action``; torques ``
 kd dq`` with ``rl_kp``, ``rl_kd`` (HIMLoco's Go2: 40, 1). Ours: the PD torque at every physics step of ``dt``
 (0.005 s, legged_gym's, for a deterministic loop; rl_sar's threads run it at dt beside MuJoCo's own
 real-time stepping), the robot first brought from its ``home`` key to default_dof_pos over 1 s
-with ``fixed_kp``/``fixed_kd`` (rl_sar's get-up), the command then held.
+with ``fixed_kp``/``fixed_kd`` (rl_sar's get-up), the command then held; ``--start standing``:
+the robot handed to the policy as our plant spawns it instead (the default pose at rest, at the
+standing height), the start a comparison with ``deploy-run`` gives both loops (docs/soak.md).
 
 A crossing: the base reaches ``CROSSED_X`` m along x (the tile's rim, 4 m from its centre) without
 tipping past 1 rad or its height above the ground under it falling under 0.4 x the standing
@@ -53,6 +55,8 @@ FALL_TILT, FALL_SHARE = 1.0, 0.4
 STANDING_HEIGHT = 0.32
 #: rl_sar's key of the CLI's default policy
 GO2_HIMLOCO = "go2/himloco"
+#: ``run``'s starts: rl_sar's get-up, or our plant's standing spawn
+START_KINDS = ("get-up", "standing")
 
 
 def _model(
@@ -143,10 +147,13 @@ def run(
     key: str = GO2_HIMLOCO,
     robot=None,
     stand: float = 0.0,
+    start: str = "get-up",
 ):
     """One run on ``tile`` (``--terrain`` syntax, or a
     :class:`~sim2real.eval.world.terrain.TerrainDraw`; None: the plane): a dict of whether it
-    crossed, the time, x reached, whether and when it fell. ``pushes``: ``(robot, PushRanges)``,
+    crossed, the time, x reached, whether and when it fell, and ``start_base_m``: the base's x,
+    y (m) and height above the ground under it when the policy takes over (after ``start``).
+    ``pushes``: ``(robot, PushRanges)``,
     the soak's push schedule of ``seed`` (:class:`~sim2real.eval.world.pushes.DomainPushes`) on
     this loop's policy ticks after the get-up, pushing the model through ``robot``'s (an import
     of the same MJCF) push methods; the pushes' times (s) in ``push_times``. ``cross``:
@@ -161,7 +168,12 @@ def run(
     whose base body, feet and joints its MJCF must have and whose standing height judges the
     fall (without one: ``STANDING_HEIGHT``). ``stand``: s the policy runs with a zero command
     after the get-up before the command is given (its gait's phase at the tile's first step;
-    ``seconds`` and the crossing's time count from the command).
+    ``seconds`` and the crossing's time count from the command). ``start``: ``get-up``
+    (rl_sar's: the ``home`` key dropped ``DROP`` m onto the ground, brought to default_dof_pos
+    over 1 s with ``fixed_kp``/``fixed_kd``), or ``standing`` (our plant's spawn, as
+    ``deploy-run --backend sim`` starts: default_dof_pos, the base level at the standing height
+    of ``robot``, else of ``motors``' import, else ``STANDING_HEIGHT``, above the ground at the
+    tile's centre, at rest; the policy from the first step).
 
     Raises:
         bench.rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
@@ -215,8 +227,24 @@ def run(
             tau = clamp(tau, data.qvel[model.jnt_dofadr[model.actuator_trnid[:, 0]]])
         data.ctrl[:] = tau
 
-    start = q_dq()[0].copy()
+    if start not in START_KINDS:
+        raise ValueError(f"start {start!r}: expected one of {START_KINDS}")
     get_up = int(1.0 / dt)
+    if start == "standing":  # our plant's spawn: the default pose on the ground, at rest
+        adr = model.jnt_qposadr[model.sensor_objid[:n]]  # the joint of each angle reading
+        data.qpos[adr[mapping]] = default
+        height = standing
+        if robot is None and motors is not None:  # the plant's import of --motors
+            from sim2real.robots.loading import load_robot
+
+            height = load_robot(motors).config.base.standing_height
+        data.qpos[:7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+        if ground is not None:
+            data.qpos[2] += float(ground.height_at(0.0, 0.0))
+        data.qvel[:] = 0.0
+        mujoco.mj_forward(model, data)
+        get_up = 0
+    start = q_dq()[0].copy()
     for k in range(get_up):  # rl_sar's get-up: the pose interpolated to default over 1 s
         torque(start + (default - start) * (k + 1) / get_up, fkp, fkd)
         mujoco.mj_step(model, data)
@@ -225,6 +253,9 @@ def run(
     asked, stand_steps = command.copy(), int(round(stand / dt))
     steps = int(seconds / dt) + stand_steps
     out = {"tile": tile, "crossed": False, "fell": False, "t_s": seconds}
+    base = data.qpos[:3].copy()  # where the policy's first step finds the base
+    base[2] -= 0.0 if ground is None else float(ground.height_at(base[0], base[1]))
+    out["start_base_m"] = [float(v) for v in base]
     target = default.copy()
     # our guard's hard-limit rule on this loop's joint readings, counted, never acted on
     # (sim2real.deploy.safety.limits: past the range for 1 s, or 0.1 rad past for 0.1 s)
@@ -333,6 +364,11 @@ def main(argv=None) -> None:
         "--stand-max", type=float, default=0.0,
         help="s: each seed stands U(0, S) s (zero command) after the get-up before walking",
     )  # fmt: skip
+    p.add_argument(
+        "--start", choices=START_KINDS, default="get-up",
+        help="get-up: rl_sar's (the home key dropped onto the ground, 1 s to the default pose); "
+        "standing: our plant's spawn (the default pose on the ground at the standing height)",
+    )  # fmt: skip
     args = p.parse_args(argv)
     if args.sensor_noise and args.motors is None:
         p.error("--sensor-noise needs --motors (the robot whose sensors' noise it draws)")
@@ -351,6 +387,7 @@ def main(argv=None) -> None:
                 args.plant_of,
                 key=args.policy,
                 stand=start_delay(s, args.stand_max),
+                start=args.start,
             )  # fmt: skip
             for s in range(args.first_seed, args.first_seed + args.seeds)
         ]

@@ -124,7 +124,11 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
         run_report,
     )
     from sim2real.deploy.cli.run_operator import parse_policies
-    from sim2real.deploy.cli.run_parser import attach_vectors, build_parser
+    from sim2real.deploy.cli.run_parser import (
+        attach_vectors,
+        build_parser,
+        parse_terrain_option,
+    )
     from sim2real.deploy.runtime import SimClock
     from sim2real.deploy.spec.drive import drive_robot
     from sim2real.robots import load_robot
@@ -135,6 +139,7 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
         argv += ["--heading-hold", heading]
     argv = attach_vectors(argv)
     args = build_parser(argv).parse_args(argv)
+    parse_terrain_option(args)  # --terrain's text made its tile draw, as deploy-run's main does
     args.policies = parse_policies(args.policy)
     robot = load_robot(args.robot)
     policies = run_policies(args, robot)

@@ -312,3 +312,24 @@ def test_the_velocity_feedback_policy_sees_its_command_corrected_by_the_base_vel
     seen = inner.copy()
     seen[0, c : c + 2] += 0.5 * (inner[0, c : c + 2] - v[0, :2])
     np.testing.assert_allclose(got, seen @ w, rtol=1e-5, atol=1e-5)
+
+
+def test_the_bare_loop_starts_as_our_plant_spawns_or_with_rl_sars_get_up(quad):
+    """``bench.himloco_terrain_loop``'s ``start``: ``standing`` hands the policy the robot as
+    deploy-run's plant spawns it (the default pose at rest, the base level at the import's
+    standing height above the tile's ground, at its centre); rl_sar's ``get-up`` (its home key
+    dropped, 1 s of its fixed gains to the default pose) hands it over elsewhere (on the Go2
+    2.6 cm forward and 1.5 cm lower, docs/soak.md: what decides the first-step stall). An
+    unknown start is refused naming it."""
+    from bench.himloco_terrain_loop import run
+
+    root, robot_dir, _ = quad
+    height = load_robot(robot_dir).config.base.standing_height
+    args = (root / "rl_sar", root / "unitree_mujoco", "stairs_up:0.10", 0.0, 0.5)
+    kw = {"key": "quad/walk", "motors": robot_dir, "timestep": 0.002, "plant_of": robot_dir}
+    standing = run(*args, start="standing", **kw)["start_base_m"]
+    assert standing == pytest.approx([0.0, 0.0, height], abs=1e-9)
+    got_up = run(*args, **kw)["start_base_m"]  # rl_sar's, the default
+    assert abs(got_up[2] - height) > 0.005
+    with pytest.raises(ValueError, match="start 'lying'"):
+        run(*args, start="lying", **kw)

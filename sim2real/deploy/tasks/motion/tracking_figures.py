@@ -3,12 +3,7 @@ its state dict: what a resumed soak needs to report the plays as an uninterrupte
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
-
-if TYPE_CHECKING:
-    from sim2real.deploy.tasks.motion.tracking import TrackingTask
 
 
 class TrackingFigures:
@@ -29,7 +24,7 @@ class TrackingFigures:
     runtime's time at the last tick (the batch's).
     """
 
-    def __init__(self, task: TrackingTask):
+    def __init__(self, task):  # the TrackingTask (not imported: it imports this module)
         self.task = task
 
     def _fields(self) -> dict[str, np.ndarray]:

@@ -46,6 +46,7 @@ from sim2real.deploy.spec.motion_blocks import (
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.pose_error import BodyPositions, body_groups
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
+from sim2real.deploy.tasks.motion.tracking_figures import TrackingFigures
 from sim2real.deploy.tasks.motion.travel import ClipTravel
 from sim2real.deploy.tasks.velocity import VelocityTask
 
@@ -462,8 +463,6 @@ class TrackingTask:
         """The stateful parts: the clip's clock, the judged figures and play log
         (:class:`~sim2real.deploy.tasks.motion.tracking_figures.TrackingFigures`), the velocity
         task's (its falls)."""
-        from sim2real.deploy.tasks.motion.tracking_figures import TrackingFigures
-
         return {
             "motion": self.motion, "figures": TrackingFigures(self), "travel": self.travel,
             **self.velocity.parts(),

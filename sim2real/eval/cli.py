@@ -21,15 +21,8 @@ commands instead of goals (:mod:`sim2real.eval.soak.batch`), on the schedule the
 or ``--min-window-success`` is given (how closely a policy follows every command is its
 training's measure; a baseline still judges a drop).
 
-Exit codes (``EXIT_*``; when several apply, the first of 4, 1, 5, 2, 6, 8, 9, 10, 7): 0 passed
-(with ``--baseline``, a check that failed only where the baseline failed it too is a known
-failure, not in the exit code), 1 hard-limit violation or hard-limit safe stop, 2 latched fault, 3
-bad input (the message names the file and the field), 4 simulation diverged, 5 over-temperature, 6
-goal success below ``--min-success`` (session) or ``--min-window-success`` (a window), 7
-regression against ``--baseline``, 8 interventions above ``--max-interventions``, 9 falls above
-``--max-falls-per-hour``, 10 an exhibition's base left its spot (a clip ended, or a rest went,
-more than 0.5 m from where the clip's root path ends: check ``on_spot``), 130 interrupted (Ctrl-C;
-``--resume`` continues from the checkpoints).
+Exit codes: :func:`exit_code`; 3 bad input (the message names the file and the field), 130
+interrupted (Ctrl-C; ``--resume`` continues from the checkpoints).
 """
 
 from __future__ import annotations
@@ -74,7 +67,18 @@ _EXIT_ORDER = (
 
 
 def exit_code(report: dict) -> int:
-    """The exit code of a report (see the module docstring)."""
+    """The exit code of a report (``EXIT_*``; when several apply, the first of 4, 1, 5, 2, 6, 8,
+    9, 10, 7).
+
+    0 passed (with ``--baseline``, a check that failed only where the baseline failed it too is
+    a known failure, not in the exit code), 1 hard-limit violation or hard-limit safe stop, 2
+    latched fault, 4 simulation diverged, 5 over-temperature, 6 goal success below
+    ``--min-success`` (session) or ``--min-window-success`` (a window), 7 regression against
+    ``--baseline``, 8 interventions above ``--max-interventions``, 9 falls above
+    ``--max-falls-per-hour``, 10 an exhibition's base left its spot (a clip ended, or a rest
+    went, more than 0.5 m from where the clip's root path ends: check ``on_spot``). The command
+    itself also exits 3 on bad input and 130 when interrupted (module docstring).
+    """
     from sim2real.eval.report.build import failures
 
     failed = set(failures(report))

@@ -218,7 +218,7 @@ class ImuConfig(_Strict):
     orientation_sigma: NonNegative | None = None  # rad
     orientation_tau: Positive = 1.0  # s
     # Its heading (yaw about gravity), which a 6-axis AHRS (no magnetometer: Unitree's, per
-    # unitree_legged_sdk issue #38) integrates from its gyroscope: the yaw error grows by a
+    # unitreerobotics/unitree_legged_sdk#38) integrates from its gyroscope: the yaw error grows by a
     # residual yaw-rate bias the filter could not calibrate away (drawn at turn-on, standard
     # deviation heading_rate_sigma rad/s, then held) and an angle random walk (heading_walk
     # rad/sqrt(s)); it starts at 0. None: the attitude's heading is the true one. Needs

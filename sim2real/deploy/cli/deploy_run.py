@@ -25,11 +25,7 @@ the vendor's SDK, or the emulator's pty), ``unitree`` (a Unitree robot's low-lev
 or its emulator): one robot, wall clock only; goals and motion figures are judged on the
 estimated state, as there is no ground truth. On hardware the run ends early once the fault is
 latched (FAULTED); at the end a servo bus's torque goes off unless ``--hold-on-close``, a Unitree
-robot is left damped.
-
-Real time (``--wait``, ``--rt-priority``, ``--cpu``, ``--lock-memory``, ``--require-rt``):
-:mod:`sim2real.deploy.runtime.clock` and :mod:`sim2real.deploy.runtime.realtime`, applied around the loop
-only.
+robot is left damped. Real time: :func:`realtime_options`.
 """
 
 from __future__ import annotations
@@ -175,7 +171,9 @@ def _fixed_goal(text: str | None) -> np.ndarray | None:
 def realtime_options(args, realtime: bool):
     """The wall clock's wait mode and the :class:`~sim2real.deploy.runtime.realtime.RealtimeRequest` of
     ``--wait``/``--spin``, ``--rt-priority``, ``--cpu``, ``--lock-memory`` and ``--require-rt``
-    (validated against this machine: the CPUs exist for this process, the priority is in range).
+    (validated against this machine: the CPUs exist for this process, the priority is in range):
+    :mod:`sim2real.deploy.runtime.clock` and :mod:`sim2real.deploy.runtime.realtime`, applied
+    around the control loop only.
 
     ``--lock-memory`` defaults to on with ``--rt-priority`` and off otherwise.
 

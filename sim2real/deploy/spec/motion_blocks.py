@@ -133,7 +133,8 @@ def anchor_base_orientation(state) -> np.ndarray:
     """(envs, 4) the base orientation the anchor is built from and the clip aligned to:
     ``state.sensed_orientation`` (the IMU's own attitude) where the robot's IMU sends one,
     else the base estimate's ``state.base.orientation`` (robot.toml ``[sensors.imu]
-    orientation_sigma`` says which: :func:`sim2real.deploy.kinds.legged.sends_attitude`)."""
+    orientation_sigma`` says which: the legged kind's state carries
+    ``sensed_orientation`` only where it is set)."""
     sensed = getattr(state, "sensed_orientation", None)
     return state.base.orientation if sensed is None else sensed
 

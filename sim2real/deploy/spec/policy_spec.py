@@ -23,7 +23,8 @@ Action: ``a`` in ``[-clip, clip]^n`` maps to the target of the control mode,
 ``target = offset + scale * a`` (``reference = "absolute"``) or ``target = q + scale * a``
 (position mode, ``reference = "current"``); :mod:`sim2real.deploy.spec.defaults` gives a robot's scales.
 Arrays are shaped (envs, ...); ``observation`` and ``action_to_target`` write into ``out`` when
-it is given (no allocation in the control loop).
+it is given (no allocation in the control loop). A block and the action mapping are
+:mod:`sim2real.deploy.spec.contract_parts`' records.
 """
 
 from __future__ import annotations
@@ -38,8 +39,14 @@ import numpy as np
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.spec.block_checks import observation_problems
 from sim2real.deploy.spec.camera import DepthImageBlock
+from sim2real.deploy.spec.contract_parts import (  # noqa: F401 - importable from here too
+    DEFAULT_CLIP,
+    SMOOTHING,
+    UNCLIPPED,
+    ActionSpec,
+    ObservationBlock,
+)
 from sim2real.deploy.spec.drive import DriveSpec
-from sim2real.deploy.spec.height_scan import HeightScanPattern
 from sim2real.deploy.spec.history import ObservationHistory, stacked_dim
 from sim2real.deploy.spec.kinds import KINDS, kind_names
 from sim2real.robots import CONTROL_MODES, Robot
@@ -76,113 +83,10 @@ LEGGED_ACTION_SCALE = 0.25
 LEGGED_ACTION_CLIP = 100.0
 #: The gait clock's period, s (unitree_rl_gym legged_gym/envs/go2: the phase period 0.8 s).
 GAIT_PERIOD = 0.8
-#: Default observation clip (in normalized units); generous, since values are already ~[-1, 1].
-#: The default of our own policies' blocks (:class:`ObservationBlock`); a spec file's block
-#: without a clip is not clipped (:data:`UNCLIPPED`).
-DEFAULT_CLIP = 5.0
-#: The clip of a value nothing clips (a spec file's block or action without ``clip``, a foreign
-#: contract's unclipped term): JSON has no infinity, and no observation in SI units (rad, rad/s,
-#: m/s) nor action reaches it, so it never binds.
-UNCLIPPED = 1.0e6
-
-#: ``ActionSpec.smoothing``'s values; ``''``: the robot's default (see there).
-SMOOTHING = ("", "none", "jerk_limited")
 
 
 class SpecError(Sim2RealError, ValueError):
     """A PolicySpec is invalid or does not match a robot; the message names the field."""
-
-
-@dataclass(frozen=True)
-class ObservationBlock:
-    """One block of the observation vector.
-
-    Attributes:
-        name: The block kind (a kind registered in :mod:`sim2real.deploy.spec.kinds`).
-        size: Number of entries it contributes.
-        scale: Per-entry divisor (physical maximum), length ``size``; finite and nonzero (a
-            negative scale flips the entry's sign, as some policies read their gait clock).
-        offset: Per-entry offset, length ``size``.
-        clip: Symmetric clip after normalization.
-        joints: Joint indices it reads (joint blocks only), in order.
-        period: ``gait_phase``: the gait clock's period, s (> 0); ``motion_phase``: the
-            motion's length ``T``, s (> 0; :mod:`sim2real.deploy.spec.motion_blocks`); 0 for
-            other blocks.
-        components: The vector kinds' and ``gait_phase``'s blocks only: the entries of the raw
-            vector it reads, in order (``(2,)``: the yaw rate of ``velocity_command``;
-            ``(1, 3, 0, 2)``: a two-foot clock ``cos p, cos(p + pi), sin p, sin(p + pi)``);
-            empty: the kind's own (a vector's three; ``gait_phase``: ``sin p, cos p``).
-        stand_below: ``gait_phase`` only: the clock stops while the velocity command's
-            ``|(vx, vy)|`` (m/s) and ``|yaw rate|`` (rad/s) are both below it, every foot held at
-            ``stand_phase``, and restarts at phase 0 (:func:`sim2real.deploy.spec.kernel.
-            gait_clock`); 0: it never stops.
-        stand_phase: ``gait_phase`` only: the phase every foot is held at while standing, rad.
-        scan: ``height_scan`` only: where it measures the terrain
-            (:class:`sim2real.deploy.spec.height_scan.HeightScanPattern`); None for other blocks.
-    """
-
-    name: str
-    size: int
-    scale: tuple[float, ...]
-    offset: tuple[float, ...]
-    clip: float = DEFAULT_CLIP
-    joints: tuple[int, ...] = ()
-    period: float = 0.0
-    components: tuple[int, ...] = ()
-    stand_below: float = 0.0
-    stand_phase: float = 0.0
-    scan: HeightScanPattern | None = None
-
-
-@dataclass(frozen=True)
-class ActionSpec:
-    """How the policy output maps to a target.
-
-    Attributes:
-        mode: 'position' (rad), 'velocity' (rad/s) or 'torque' (N m).
-        size: Number of actions (= joints).
-        scale: Per-joint scale, length ``size`` (units of the mode per unit action).
-        offset: Per-joint offset, length ``size``.
-        clip: The action is clipped to ``[-clip, clip]`` before mapping.
-        reference: 'absolute' (``offset + scale * a``) or 'current' (position mode only:
-            ``q + scale * a``).
-        joints: The joint each output of the graph drives, in output order (indices into
-            ``joint_names``, each at most once); empty: output ``i`` drives joint ``i``. The
-            policy (:class:`sim2real.deploy.policy.onnx_policy.OnnxPolicy`) scatters its output into
-            ``joint_names`` order, so ``scale``, ``offset`` and the runtime's ``last_action``
-            are in ``joint_names`` order. Fewer outputs than joints: a policy over part of the
-            robot (:meth:`PolicySpec.on_robot`); a joint no output drives has action 0, its
-            target is its ``offset`` (position mode: held at that pose, as Unitree's deploy
-            code holds the joints its policies do not drive).
-        smoothing: How the targets reached the drives in training, where the robot's drives
-            run a PD law on position targets (a PD-target robot kind): ``'none'``, each target
-            as the policy emitted it (legged_gym, Isaac Lab, mjlab and their deploy loops: a
-            target is a torque request); ``'jerk_limited'``, through the runtime's Ruckig
-            stage within the robot's velocity, acceleration and jerk limits (the toolkit's own
-            training, which runs the runtime); ``''`` (left out), the robot's default:
-            ``'none'`` for a PD-target robot, else ``'jerk_limited'``. The runtime reproduces
-            it. Other robots' commands are always jerk-limited (the smoother is their safety
-            stage): ``'none'`` there is refused when the policy meets the robot.
-    """
-
-    mode: str
-    size: int
-    scale: tuple[float, ...]
-    offset: tuple[float, ...]
-    clip: float = 1.0
-    reference: str = "absolute"
-    joints: tuple[int, ...] = ()
-    smoothing: str = ""
-
-    @property
-    def outputs(self) -> int:
-        """The graph's action outputs: ``len(joints)`` when set, else ``size``."""
-        return len(self.joints) if self.joints else self.size
-
-    @property
-    def driven(self) -> tuple[int, ...]:
-        """The joints some output drives, ascending (every joint when ``joints`` is empty)."""
-        return tuple(sorted(self.joints)) if self.joints else tuple(range(self.size))
 
 
 @dataclass(frozen=True)

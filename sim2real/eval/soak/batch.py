@@ -38,12 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.core.modes import Mode
-from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.kinds import robot_kind
-from sim2real.deploy.monitors.kernel import temperature_bands
 from sim2real.deploy.tasks.task import follows_velocity_commands
 from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
+from sim2real.eval.soak.batch_stats import BatchStats
 from sim2real.eval.soak.batch_tick import BatchTick
 from sim2real.eval.soak.curriculum_walk import CurriculumWalk
 from sim2real.eval.soak.exhibition import exhibition_task
@@ -74,26 +73,6 @@ SUPERVISE_PERIOD = 0.1
 DRIFT_PERIOD = 10.0
 #: s of simulated time between progress reports.
 PROGRESS_PERIOD = 10.0
-#: The batch's per-env thermal accumulators a checkpoint keeps (``stats/<name>``).
-STATS = ("peak", "window_peak", "band_ticks", "over_ticks", "speed_peak")
-
-
-class _Stats:
-    """The batch's accumulators (``STATS``: winding peak, window peak, ticks in the derating
-    band, ticks over the maximum, the true joint speed's peak; (envs, n)) as a stage of a checkpoint
-    (:mod:`sim2real.deploy.core.stateful`)."""
-
-    def __init__(self, batch):
-        self.batch = batch
-
-    def _fields(self) -> dict[str, np.ndarray]:
-        return {name: getattr(self.batch, name) for name in STATS}
-
-    def state_dict(self, env: int | None = None) -> dict[str, np.ndarray]:
-        return take(self._fields(), env)
-
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        put(self._fields(), state, env)
 
 
 def _ticks(seconds: float, dt: float) -> int:
@@ -207,17 +186,13 @@ class SessionBatch:
         )  # fmt: skip
         self.curriculum_respawns = replay_stops
 
-        n = robot.n_joints
-        self.peak = backend.thermal.winding_temperature.copy()
-        self.window_peak = self.peak.copy()
-        self.band_ticks = np.zeros((k, n), dtype=np.int64)
-        self.over_ticks = np.zeros((k, n), dtype=np.int64)
-        #: (envs, n) rad/s, each joint's largest true speed (a wheel's against its limit)
-        self.speed_peak, self._speed = np.zeros((k, n)), np.zeros((k, n))
-        self._t_start = np.array([m.derating_start_temperature for m in robot.motors])
-        self._t_max = np.array([m.max_winding_temperature for m in robot.motors])
+        #: the thermal and speed accumulators, a stage of the checkpoints; their arrays (envs, n)
+        #: are the batch's too: winding peak, window peak, band and over ticks, speed peak (rad/s)
+        self.stats = BatchStats(backend, robot)
+        self.peak, self.window_peak = self.stats.peak, self.stats.window_peak
+        self.band_ticks, self.over_ticks = self.stats.band_ticks, self.stats.over_ticks
+        self.speed_peak = self.stats.speed_peak
         self.faulted = np.zeros(k, dtype=bool)
-        self.stats = _Stats(self)  # the accumulators above as a stage of the checkpoints
 
         self.total_ticks = int(round(first.duration / dt))
         self.every = _ticks(SUPERVISE_PERIOD, dt)
@@ -321,17 +296,7 @@ class SessionBatch:
         if self.pushes is not None:  # the estimate judged against the truth its frame sampled
             self.push_response(rt, self.backend)
             self.pushes(rt, self.backend)
-        temperature_bands(
-            self.backend.thermal.winding_temperature,
-            self._t_start,
-            self._t_max,
-            self.peak,
-            self.window_peak,
-            self.band_ticks,
-            self.over_ticks,
-        )
-        np.abs(self.backend.true_velocity(), out=self._speed)
-        np.maximum(self.speed_peak, self._speed, out=self.speed_peak)
+        self.stats.update(self.backend)
         if rt.ticks >= self._next_event:
             self._supervise(rt)
         if self.stop_replay is not None:  # last: a capture must hold this whole tick

@@ -20,19 +20,7 @@ the base's planar distance from its tile's centre,
 Then it is respawned on its new level's tile with a new command (``reset_idx``:
 ``_reset_root_states``, ``_resample_commands``).
 
-Here a session's ground is its kind's column: one tile per level along x, ``tiles`` tiles of the
-same kind along y (legged_gym's neighbouring columns hold other kinds; ours repeat the
-session's, so that one kind's figures are one kind's). The robot starts at the centre of its
-drawn level's tile (the plant's spawn, the world origin; legged_gym's first spawn is offset by
-the same +-1 m, ``_create_envs``, ``legged_robot.py:861``, ours is not).
-:class:`CurriculumWalk` counts each env's RUNNING time in its episode; at
-``episode_length_s`` (a timeout) or at the operator's stand-up after a stop (a fall, a latched
-fault: legged_gym's termination) it applies the rule, and the stand-up
-(:meth:`sim2real.eval.soak.batch.SessionBatch.stand_up`) puts the robot at rest on the new
-level's tile centre plus the +-1 m, raised to the ground there as at the start
-(:func:`sim2real.eval.world.terrain.spawn_height`), and its command schedule draws a new
-command at once. A timeout's respawn is an operator's restart without a fault (RAMP_IN),
-counted apart from the stand-ups after falls.
+Here a session's ground is its kind's column of levels, walked by :class:`CurriculumWalk`.
 
 What each env did: episodes ended by a timeout and by a stop, moves up and down, its first and
 last level, and per level the RUNNING seconds its base spent on that row's tiles and the
@@ -70,7 +58,21 @@ ENDS = ("timeout", "stop")
 
 
 class CurriculumWalk:
-    """The curriculum walk of a soak batch's envs (module docstring).
+    """The curriculum walk of a soak batch's envs (the rule: module docstring).
+
+    Here a session's ground is its kind's column: one tile per level along x, ``tiles`` tiles of the
+    same kind along y (legged_gym's neighbouring columns hold other kinds; ours repeat the
+    session's, so that one kind's figures are one kind's). The robot starts at the centre of its
+    drawn level's tile (the plant's spawn, the world origin; legged_gym's first spawn is offset by
+    the same +-1 m, ``_create_envs``, ``legged_robot.py:861``, ours is not).
+    It counts each env's RUNNING time in its episode; at ``episode_length_s`` (a timeout) or at
+    the operator's stand-up after a stop (a fall, a latched fault: legged_gym's termination) it
+    applies the rule, and the stand-up
+    (:meth:`sim2real.eval.soak.batch.SessionBatch.stand_up`) puts the robot at rest on the new
+    level's tile centre plus the +-1 m, raised to the ground there as at the start
+    (:func:`sim2real.eval.world.terrain.spawn_height`), and its command schedule draws a new
+    command at once. A timeout's respawn is an operator's restart without a fault (RAMP_IN),
+    counted apart from the stand-ups after falls.
 
     Args:
         layouts: Each env's :class:`~sim2real.eval.world.tile_parts.TileLayout` (a curriculum

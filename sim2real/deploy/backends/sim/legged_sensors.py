@@ -1,8 +1,7 @@
 """IMU and foot-contact sensing of a floating-base robot in the MuJoCo plant.
 
-:class:`BaseSensorModel` belongs to a :class:`sim2real.deploy.backends.sim.plant.SimBackend` of a robot with
-a
-``[base]`` table; it reads MuJoCo's sensors of the robot's MJCF (``gyro`` and ``accelerometer``
+:class:`BaseSensorModel` belongs to a :class:`sim2real.deploy.backends.sim.plant.SimBackend` of a robot
+with a ``[base]`` table; it reads MuJoCo's sensors of the robot's MJCF (``gyro`` and ``accelerometer``
 at the IMU site, a ``touch`` per foot site: the normal force of the contacts inside the site)
 and turns them into what a real robot's drivers deliver, at each sensor's own rate and latency:
 
@@ -23,18 +22,8 @@ AHRS's does::
 
 reported ``Rz(h) R_xy(roll, pitch error) q_site`` (world frame, ``w x y z``). Foot contact
 (``[sensors.contact]``): each foot's normal force plus Gaussian noise (N),
-``foot_contact = force > threshold``.
-
-The noise settings are per env (``(envs,)`` arrays, change them between ticks: per-session
-randomization, :func:`sim2real.eval.world.sensors.apply_imu`). The draws come from the backend's sensor
-stream(s), after the encoder's, so an arm's readings are unchanged. MuJoCo computes the sensors at
-the start of each physics step: a reading is the state one physics timestep before the end of the
-control period.
-
-The plant's tick samples and reads through the compiled kernels of
-:mod:`sim2real.deploy.backends.sim.legged_sensors_kernel` (the same numbers), drawing from the
-streams of the plant's compiled step; the numpy path (:attr:`BaseSensorModel.compiled` False, a
-stream that is not a numpy ``Generator``, a sample of some envs) is their reference.
+``foot_contact = force > threshold``. MuJoCo computes the sensors at the start of each physics
+step: a reading is the state one physics timestep before the end of the control period.
 """
 
 from __future__ import annotations
@@ -75,6 +64,15 @@ _FRAME_FIELDS = (
 class BaseSensorModel:
     """IMU and contact sensors of ``backend`` (a :class:`~sim2real.deploy.backends.sim.plant.SimBackend` of a
     floating-base robot).
+
+    The noise settings are per env (``(envs,)`` arrays, change them between ticks: per-session
+    randomization, :func:`sim2real.eval.world.sensors.apply_imu`). The draws come from the
+    backend's sensor stream(s), after the encoder's, so an arm's readings are unchanged.
+
+    The plant's tick samples and reads through the compiled kernels of
+    :mod:`sim2real.deploy.backends.sim.legged_sensors_kernel` (the same numbers), drawing from the
+    streams of the plant's compiled step; the numpy path (:attr:`compiled` False, a stream that
+    is not a numpy ``Generator``, a sample of some envs) is their reference.
 
     Attributes (per env, ``(envs,)``; change between ticks, in place: the compiled tick is
     bound to these arrays):

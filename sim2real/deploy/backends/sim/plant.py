@@ -31,6 +31,12 @@ import numpy as np
 from sim2real.deploy.backends.sim.actuators import ActuatorModel
 from sim2real.deploy.backends.sim.compiled_step import CompiledStep
 from sim2real.deploy.backends.sim.disturbances import SimDisturbances
+from sim2real.deploy.backends.sim.divergence import (  # noqa: F401 - the errors importable here
+    WARNING_SLICE,
+    NonFiniteCommandError,
+    SimulationDivergedError,
+    check_divergence,
+)
 from sim2real.deploy.backends.sim.drives import SimDrives
 from sim2real.deploy.backends.sim.legged_sensors import BaseSensorModel
 from sim2real.deploy.backends.sim.plant_faces import plant_extras
@@ -49,29 +55,7 @@ from sim2real.deploy.core.delegate import delegate
 from sim2real.deploy.kernels import all_finite, copy_finite
 from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import CONTROL_MODES, Robot
-from sim2real.robots.errors import Sim2RealError
 from sim2real.robots.thermal import TwoNodeThermalModel
-
-_DIVERGENCE_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQACC,
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-    mujoco.mjtWarning.mjWARN_BADCTRL,
-)
-# The divergence warnings are consecutive in mjtWarning (BADQPOS..BADCTRL): the hot path checks
-# them through one slice view of ``MjData.warning.number`` per env.
-_WARNING_SLICE = slice(
-    min(int(w) for w in _DIVERGENCE_WARNINGS), max(int(w) for w in _DIVERGENCE_WARNINGS) + 1
-)
-assert _WARNING_SLICE.stop - _WARNING_SLICE.start == len(_DIVERGENCE_WARNINGS)
-
-
-class SimulationDivergedError(Sim2RealError, RuntimeError):
-    """MuJoCo reported a divergence (non-finite or huge state); the session must fail loudly."""
-
-
-class NonFiniteCommandError(Sim2RealError, ValueError):
-    """A command with NaN or inf was written; it was rejected and never reached MuJoCo."""
 
 
 class SimBackend(BackendLifecycle):
@@ -282,7 +266,7 @@ class SimBackend(BackendLifecycle):
         self.drives.bind(e, m, d)  # re-derate at the next advance; velocity mode: the setpoints
         ctrl = d.ctrl.reshape(-1, self.n_joints)
         qpos, force = d.qpos[self._qpos_offset :], d.qfrc_actuator[self._qvel_offset :]
-        self._views[e] = (m, d, ctrl, qpos, force, d.warning.number[_WARNING_SLICE])
+        self._views[e] = (m, d, ctrl, qpos, force, d.warning.number[WARNING_SLICE])
         self._qvel_views[e] = d.qvel[self._qvel_offset :]
         self._actfrc[e] = m.jnt_actfrcrange[self._jnt_offset : self._jnt_offset + self.n_joints]
         if self._compiled is not None:  # the kernels' addresses of the new views
@@ -440,7 +424,7 @@ class SimBackend(BackendLifecycle):
                 sample = DRAWN
         if not compiled.after(tick, sample):  # MuJoCo found a bad state (and reset the data)
             for e, d in enumerate(self.datas):
-                self._check_divergence(e, d)
+                check_divergence(e, d)
         self.tick = tick
         if tick % sensors.temperature_every == 0:
             sensors.report_temperature(self.time, self.thermal.winding_temperature)
@@ -485,16 +469,7 @@ class SimBackend(BackendLifecycle):
     def check_divergence(self, env: int) -> None:
         """Raise :class:`SimulationDivergedError` if MuJoCo flagged env ``env``'s state as
         diverged (warning counters) or its ``qpos``/``qvel`` are not finite; else nothing."""
-        self._check_divergence(env, self.datas[env])
-
-    def _check_divergence(self, env: int, d: mujoco.MjData) -> None:
-        bad = [w.name for w in _DIVERGENCE_WARNINGS if d.warning[w].number > 0]
-        if bad or not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
-            raise SimulationDivergedError(
-                f"env {env}: MuJoCo diverged at t={d.time:.4f} s "
-                f"(warnings: {', '.join(bad) or 'none'}; "
-                f"qpos={np.array2string(d.qpos, precision=3)})"
-            )
+        check_divergence(env, self.datas[env])
 
     def sample_sensors(self) -> None:
         """Take the readings due at this tick from the joint angles gathered by the last period

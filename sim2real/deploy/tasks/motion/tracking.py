@@ -44,21 +44,11 @@ from sim2real.deploy.spec.motion_blocks import (
     torso_quat,
 )
 from sim2real.deploy.tasks.motion.clock import MotionClock
+from sim2real.deploy.tasks.motion.pose_error import BodyPositions, body_groups
 from sim2real.deploy.tasks.motion.self_contact import clip_self_contacts
+from sim2real.deploy.tasks.motion.tracking_figures import TrackingFigures
 from sim2real.deploy.tasks.motion.travel import ClipTravel
 from sim2real.deploy.tasks.velocity import VelocityTask
-
-#: Body groups of the joint-angle error, by a word of the joint's name (the first that matches).
-GROUPS = (("legs", ("hip", "knee", "ankle")), ("waist", ("waist", "torso")), ("arms", ("",)))
-
-
-def body_groups(joint_names) -> dict[str, np.ndarray]:
-    """``{group: joint indices}`` of :data:`GROUPS` (a group with no joints left out)."""
-    out: dict[str, list[int]] = {g: [] for g, _ in GROUPS}
-    for i, name in enumerate(joint_names):
-        group = next(g for g, words in GROUPS if any(w in name for w in words))
-        out[group].append(i)
-    return {g: np.array(v, dtype=np.intp) for g, v in out.items() if v}
 
 
 class TrackingTask:
@@ -144,15 +134,7 @@ class TrackingTask:
         self.handed_over = np.zeros(envs, dtype=bool)
         #: what follows the clip, as the run decided it (:meth:`follows`)
         self.after: dict = {"follows": clock.playback}
-        import pinocchio as pin
-
-        model = robot.pin_model
-        self._pin = (pin, model, model.createData())
-        self._bodies = [
-            i
-            for i, f in enumerate(model.frames)
-            if f.type == pin.FrameType.BODY and f.parentJoint > 1
-        ]
+        self.bodies = BodyPositions(robot)
 
     def _buffer(self, runtime) -> np.ndarray:
         state = runtime.state
@@ -268,7 +250,7 @@ class TrackingTask:
         self._play[e, 1] += 1
         self._play[e, 4] += angle[e]
         for k in e:
-            mm = 1000.0 * self._mpjpe(ref[k, :n], q[k])
+            mm = 1000.0 * self.bodies.mpjpe(ref[k, :n], q[k])
             self.mpjpe_sum[k] += mm
             self._play[k, 5] += mm
 
@@ -390,15 +372,6 @@ class TrackingTask:
             return None
         return self.contacts.allowed(self.motion.reference_index(float(t)))
 
-    def _bodies_at(self, q: np.ndarray) -> np.ndarray:
-        pin, model, data = self._pin
-        pin.framesForwardKinematics(model, data, self.robot.pin_configuration(q))
-        return np.array([data.oMf[f].translation for f in self._bodies])
-
-    def _mpjpe(self, q_ref: np.ndarray, q: np.ndarray) -> float:
-        """m: mean distance of the bodies of ``q_ref`` and ``q`` (n,) rad, base at the origin."""
-        return float(np.linalg.norm(self._bodies_at(q_ref) - self._bodies_at(q), axis=1).mean())
-
     def success(self, env: int | None = None) -> float | None:
         """The share of the clip completed (of env ``env``, or the mean)."""
         share = self.progress / self.motion.length
@@ -431,7 +404,7 @@ class TrackingTask:
             "anchor_error_deg_mean": float(self.anchor_sum.sum() / ticks) if ticks else None,
             "anchor_error_deg_max": float(self.anchor_max.max()),
             "mpjpe_mm": float(self.mpjpe_sum.sum() / ticks) if ticks else None,
-            "bodies": len(self._bodies),
+            "bodies": self.bodies.count,
             "judged_on": "plant truth" if self.truth is not None else "estimate",
             "stand_s": self.motion.stand_s if self.motion.home is not None else None,
             "end_from_home_rad_rms": self._from_home(),
@@ -463,9 +436,33 @@ class TrackingTask:
     def curve_point(self, curve: dict[str, list], e: int) -> None:
         self.velocity.curve_point(curve, e)
 
+    def judged_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays of the judgement under way, by their state-dict name (the env axis first;
+        :class:`~sim2real.deploy.tasks.motion.tracking_figures.TrackingFigures`), the arrays
+        themselves: a load writes into them."""
+        names = ("progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum")
+        names += ("waited", "heading", "handed_over", "after_counts")
+        out = {k: getattr(self, k) for k in names}
+        return out | {
+            "play": self._play,
+            "seen": self._seen,
+            "vseen": self._vseen,
+            "peak": self._peak,
+        }
+
+    @property
+    def clock_now(self) -> float:
+        """s, the runtime's time at the last tick."""
+        return self._clock_now
+
+    @clock_now.setter
+    def clock_now(self, now: float) -> None:
+        self._clock_now = float(now)
+
     def parts(self) -> dict:
         """The stateful parts: the clip's clock, the judged figures and play log
-        (:class:`TrackingFigures`), the velocity task's (its falls)."""
+        (:class:`~sim2real.deploy.tasks.motion.tracking_figures.TrackingFigures`), the velocity
+        task's (its falls)."""
         return {
             "motion": self.motion, "figures": TrackingFigures(self), "travel": self.travel,
             **self.velocity.parts(),
@@ -480,65 +477,3 @@ class TrackingTask:
         from sim2real.deploy.core.stateful import load_parts
 
         load_parts(self.parts(), state, env)
-
-
-class TrackingFigures:
-    """The state of a :class:`TrackingTask`'s judgement, as a part of its state dict
-    (:mod:`sim2real.deploy.core.stateful`): what a resumed soak needs to report the plays as an
-    uninterrupted one.
-
-    Fields (the env axis kept): ``progress``, ``sq_error``, ``anchor_sum``, ``anchor_max``,
-    ``ticks``, ``mpjpe_sum``, ``waited``, ``heading`` (the task's attributes), ``play``
-    (envs, 12): the play under way's sums (squared joint error, ticks, interventions, safety
-    interventions, anchor error, MPJPE, the rest's interventions and safety interventions, the
-    play's hard-limit and any-violation ticks, the rest's), ``handed_over`` (envs,) and
-    ``after_counts`` (envs, 3) (the task's), ``seen`` (envs, 2): the intervention counts at the
-    last tick, ``vseen`` (envs, 2): the violation monitor's hard-limit and any-violation ticks
-    at the last tick, ``peak`` (envs, n) degC: the play's hottest windings; ``play_log``: JSON
-    text of the envs' ended plays (:attr:`TrackingTask.play_log`); ``clock_now``: s, the
-    runtime's time at the last tick (the batch's).
-    """
-
-    ARRAYS = (
-        "progress", "sq_error", "anchor_sum", "anchor_max", "ticks", "mpjpe_sum", "waited",
-        "heading", "handed_over", "after_counts",
-    )  # fmt: skip
-    PRIVATE = {"play": "_play", "seen": "_seen", "vseen": "_vseen", "peak": "_peak"}
-
-    def __init__(self, task: TrackingTask):
-        self.task = task
-
-    def _fields(self) -> dict[str, np.ndarray]:
-        t = self.task
-        out = {k: getattr(t, k) for k in self.ARRAYS}
-        out.update({k: getattr(t, a) for k, a in self.PRIVATE.items()})
-        return out
-
-    def state_dict(self, env: int | None = None) -> dict:
-        """The fields (class docstring) of every env, or of env ``env``."""
-        from sim2real.deploy.core.stateful import env_list, take, to_json
-
-        out: dict = take(self._fields(), env)
-        envs = env_list(self.task.envs, env)
-        out["play_log"] = to_json([self.task.play_log[e] for e in envs])
-        out["clock_now"] = float(self.task._clock_now)
-        return out
-
-    def load_state_dict(self, state: dict, env: int | None = None) -> None:
-        """Inverse of :meth:`state_dict`; a state that does not fit changes nothing.
-
-        Raises:
-            StateDictError: a field missing, shaped otherwise, or a play log that is not a list
-                per env (named).
-        """
-        from sim2real.deploy.core.stateful import check, env_list, put, read_records, scalar
-
-        fields = self._fields()
-        check(fields, state, env)
-        envs = env_list(self.task.envs, env)
-        logs = read_records(state, ["play_log"], len(envs))["play_log"]
-        now = scalar(state, "clock_now", float)
-        put(fields, state, env)
-        for e, log in zip(envs, logs, strict=True):
-            self.task.play_log[e] = list(log)
-        self.task._clock_now = now

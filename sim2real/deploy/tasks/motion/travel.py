@@ -29,9 +29,9 @@ import numpy as np
 
 from sim2real.deploy.core.attitude import yaw_of
 
-#: m a clip run's base may end from where the clip's root path ends (issue 97's bound: the
-#: G1's dances end within 0.5 m of their clip's end in rl_sar's own loop, which hands the robot
-#: to its locomotion policy at the clip's end, ``fsm_g1.hpp``).
+#: m a clip run's base may end from where the clip's root path ends (the bound: the G1's
+#: dances end within 0.5 m of their clip's end in rl_sar's own loop, which hands the robot to
+#: its locomotion policy at the clip's end, ``fsm_g1.hpp``).
 OFF_PATH_M = 0.5
 #: m the base may travel after the clip, holding or under the policy handed over to (the same
 #: bound: standing still is the point of what follows a dance).

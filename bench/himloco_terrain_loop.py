@@ -23,11 +23,8 @@ standing height), the start a comparison with ``deploy-run`` gives both loops (d
 A crossing: the base reaches ``CROSSED_X`` m along x (the tile's rim, 4 m from its centre) without
 tipping past 1 rad or its height above the ground under it falling under 0.4 x the standing
 height (the project's fall judges; the robot import's, else the Go2's 0.32 m). ``--motors
-ROBOT_DIR`` gives the loop the motors of an imported robot (its effort limits and its motors'
-torque-speed lines at 25 degC, :class:`sim2real.robots.torque_speed.TorqueSpeedEnvelope`, as the
-plant applies them);
-``--sensor-noise`` adds that robot's white encoder, joint-speed and gyro noise, drawn by seed.
-Usage::
+ROBOT_DIR``: an imported robot's motors (effort limits, torque-speed lines at 25 degC, as the
+plant applies them); ``--sensor-noise``: its white encoder, joint-speed and gyro noise. Usage::
 
     python -m bench.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR stairs_up:0.10 slope_up:15deg
 """

@@ -52,7 +52,7 @@ FOLLOWS = {
     "once": "a hold judged: its last frame (BeyondMimic's controller holds it)",
     "hold": "a hold judged: its last frame (BeyondMimic's controller holds it)",
     "default_pose": "the policy off at the clip's end{at}, the PD loop holding home, ramped to "
-    "over {ramp_s:g} s from the pose it ended in (unitree_rl_gym's move_to_default_pos, "
+    "over {ramp_s:g} s from its last target (unitree_rl_gym's move_to_default_pos, "
     "default_pos_state); judged",
     "loop": "the clip again (a loop)",
     "exhibition": "to home, a rest at home, the clip again (an exhibition)",

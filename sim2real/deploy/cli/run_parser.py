@@ -202,7 +202,7 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         help="hand the robot to the policy --policy NAME=FILE at the clip's end, as rl_sar's "
         "fsm hands its dance to its locomotion policy (default: a clip run's second --policy, "
         "without --operator); 'default-pose': no second policy, the policy off and the PD "
-        "loop holding the home pose, ramped to from the clip's last pose (unitree_rl_gym's "
+        "loop holding the home pose, ramped to from its last target (unitree_rl_gym's "
         "deploy); one robot (--envs 1)",
     )
     p.add_argument(

@@ -14,7 +14,7 @@ and the base is judged after the clip as after a hold (the tracking task's ``tra
 
 The third way (``--after-clip default-pose``, :data:`DEFAULT_POSE`): no second policy. At the
 clip's end the policy is off (:class:`PolicyOff`, its output discarded) and the PD loop holds the
-home pose (the policy's default joint pose), reached along a line from the estimated pose over
+home pose (the policy's default joint pose), reached along a line from the last PD target over
 ``blend_s`` s (2 by default), as Unitree's own deploy holds a humanoid before and between policies
 (unitree_rl_gym ``deploy/deploy_real/deploy_real.py``: ``move_to_default_pos``, ``total_time = 2``,
 then ``default_pos_state``), with the run's gains (the policy's drive, not that config's kp/kd).
@@ -33,7 +33,6 @@ import numpy as np
 
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.rig.hooks import RunHook
-
 
 #: ``--after-clip``'s name of the hold at the home pose with the policy off (module docstring)
 DEFAULT_POSE = "default-pose"

@@ -165,6 +165,27 @@ def test_a_default_pose_hold_that_cannot_be_is_refused_in_one_line(
     assert not (tmp_path / "r.json").exists()
 
 
+def test_the_running_ramp_holds_home_until_the_env_leaves_running():
+    """RampIn with ``running`` (the policy-off hold): the RUNNING envs' targets go along the line
+    to home and stay there past the ramp's end; an env that stops (a fall) is let go."""
+    from sim2real.deploy.core.modes import RUNNING, SAFE_STOP
+    from sim2real.deploy.runtime.handover import RampIn
+
+    start, home = np.array([[1.0, -1.0], [1.0, -1.0]]), np.zeros(2)
+    ramp = RampIn(start, home, np.array([True, True]), ticks=2, running=True)
+    mode = np.full(2, RUNNING, dtype=np.int8)
+    target = np.full((2, 2), 9.0)
+    assert not ramp.shape(target, mode)
+    np.testing.assert_allclose(target, 0.5 * start)
+    for _ in range(5):  # past its 2 ticks: home, held
+        target[:] = 9.0
+        assert not ramp.shape(target, mode)
+        np.testing.assert_allclose(target, 0.0)
+    mode[:] = SAFE_STOP
+    target[:] = 9.0
+    assert ramp.shape(target, mode) and (target == 9.0).all()
+
+
 def _clip(tmp_path, root_xy: np.ndarray, yaw: float = 0.0) -> MotionClip:
     frames = len(root_xy)
     half = 0.5 * yaw

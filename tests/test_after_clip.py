@@ -96,6 +96,96 @@ def test_a_hand_over_that_cannot_be_is_refused_in_one_line(dancer, tmp_path, cap
     assert not (tmp_path / "r.json").exists()
 
 
+def test_the_policy_off_and_home_held_keeps_the_dancer_on_its_spot(dancer, tmp_path, capsys):
+    """--after-clip default-pose, no second policy: at the clip's end the dancer's policy is off
+    and the PD loop holds home, ramped to over 2 s (unitree_rl_gym's move_to_default_pos): the
+    walker stops on its spot, the run is clean and says what followed the clip."""
+    policy, _, clip = dancer
+    argv = ["--policy", str(policy), "--motion", str(clip), "--after-clip", "default-pose"]
+    code, r, out = _run(argv, tmp_path, capsys)
+    t = r["tracking"]
+    assert code == 0, out
+    after = t["after_clip"]
+    assert after["follows"] == "default_pose" and after["blend_s"] == 2.0
+    assert after["at_s"] is not None and after["at_s"] > t["length_s"]
+    (f,) = t["travel"]["envs"]
+    assert f["after_clip_max_m"] < OFF_PATH_M and t["travel"]["off_path"] == []
+    assert t["plays"] == 1 and r["locomotion"]["falls"] == 0
+    assert "the policy off at the clip's end" in out and "over 2 s" in out
+
+
+def test_with_the_policy_off_the_dancer_is_not_called_after_its_clip(dancer, go2, monkeypatch):
+    """The hold is the PD loop's, not the policy's: once the clip has ended the dancer's ONNX is
+    not run again, and the joints' targets reach home after the ramp."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.rig.after_clip import AfterClipHook
+
+    calls, seen = [], {}
+    real_call, real_tick = OnnxPolicy.__call__, AfterClipHook.after_tick
+
+    def counted(self, obs):
+        calls.append(seen.get("runtime") and seen["runtime"].time)
+        return real_call(self, obs)
+
+    def watched(self, runtime):
+        seen["runtime"], seen["hook"] = runtime, self
+        real_tick(self, runtime)
+
+    monkeypatch.setattr(OnnxPolicy, "__call__", counted)
+    monkeypatch.setattr(AfterClipHook, "after_tick", watched)
+    policy, _, clip = dancer
+    argv = ["--backend", "sim", "--robot", "go2", "--duration", "5", "--policy", str(policy),
+            "--motion", str(clip), "--after-clip", "default-pose", "--after-clip-blend", "1"]  # fmt: skip
+    assert deploy_run_main(argv) == 0
+    at = seen["hook"].at_s
+    assert at is not None and calls and max(c or 0.0 for c in calls) <= at + 1e-9
+    np.testing.assert_allclose(seen["runtime"].target[0], go2.home, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (["--motion-playback", "hold"], "--after-clip default-pose and --motion-playback hold"),
+        (["SECOND"], "--after-clip default-pose and a second --policy"),
+        (["--envs", "2"], "--envs must be 1"),
+        (["--after-clip-blend=-1"], "--after-clip-blend -1.0: expected s >= 0"),
+    ],
+)
+def test_a_default_pose_hold_that_cannot_be_is_refused_in_one_line(
+    dancer, tmp_path, capsys, extra, match
+):
+    policy, stand, clip = dancer
+    if extra == ["SECOND"]:  # the go2's standing policy as a second --policy
+        extra = ["--policy", f"stand={stand}"]
+    argv = ["--policy", f"dance={policy}", "--motion", str(clip), "--after-clip", "default-pose"]
+    code, _, out = _run([*argv, *extra], tmp_path, capsys)
+    lines = [x for x in out.splitlines() if x.startswith("deploy-run: error:")]
+    assert code == 3 and len(lines) == 1 and match in lines[0], out
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_the_running_ramp_holds_home_until_the_env_leaves_running():
+    """RampIn with ``running`` (the policy-off hold): the RUNNING envs' targets go along the line
+    to home and stay there past the ramp's end; an env that stops (a fall) is let go."""
+    from sim2real.deploy.core.modes import RUNNING, SAFE_STOP
+    from sim2real.deploy.runtime.handover import RampIn
+
+    start, home = np.array([[1.0, -1.0], [1.0, -1.0]]), np.zeros(2)
+    ramp = RampIn(start, home, np.array([True, True]), ticks=2, running=True)
+    mode = np.full(2, RUNNING, dtype=np.int8)
+    target = np.full((2, 2), 9.0)
+    assert not ramp.shape(target, mode)
+    np.testing.assert_allclose(target, 0.5 * start)
+    for _ in range(5):  # past its 2 ticks: home, held
+        target[:] = 9.0
+        assert not ramp.shape(target, mode)
+        np.testing.assert_allclose(target, 0.0)
+    mode[:] = SAFE_STOP
+    target[:] = 9.0
+    assert ramp.shape(target, mode) and (target == 9.0).all()
+
+
 def _clip(tmp_path, root_xy: np.ndarray, yaw: float = 0.0) -> MotionClip:
     frames = len(root_xy)
     half = 0.5 * yaw

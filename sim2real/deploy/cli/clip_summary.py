@@ -51,6 +51,9 @@ FOLLOWS = {
     "append)",
     "once": "a hold judged: its last frame (BeyondMimic's controller holds it)",
     "hold": "a hold judged: its last frame (BeyondMimic's controller holds it)",
+    "default_pose": "the policy off at the clip's end{at}, the PD loop holding home, ramped to "
+    "over {ramp_s:g} s from its last target (unitree_rl_gym's move_to_default_pos, "
+    "default_pos_state); judged",
     "loop": "the clip again (a loop)",
     "exhibition": "to home, a rest at home, the clip again (an exhibition)",
 }
@@ -65,6 +68,7 @@ def after_clip_text(t: dict) -> str:
         blend=f", blended over {blend:g} s" if blend else ", at once",
         at=f" ({after['at_s']:.2f} s)" if after.get("at_s") is not None else " (not reached)",
         stand_s=t.get("stand_s") or 0.0,
+        ramp_s=blend,
     )
 
 

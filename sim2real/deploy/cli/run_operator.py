@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2real.deploy.rig.after_clip import DEFAULT_POSE, DEFAULT_POSE_RAMP_S
+
 
 def add_operator_options(p: argparse.ArgumentParser) -> None:
     """Add ``--operator``, ``--operator-source``, ``--lie-policy`` and ``--stand-policy``."""
@@ -185,6 +187,8 @@ def after_clip_policy(args, policies: dict, first) -> tuple[str, object] | None:
             ``--after-clip-blend``.
     """
     name = args.after_clip
+    if name == DEFAULT_POSE:
+        return _default_pose(args, policies)
     if name is None:
         from sim2real.deploy.tasks.motion.source import reads_motion
 
@@ -210,6 +214,43 @@ def after_clip_policy(args, policies: dict, first) -> tuple[str, object] | None:
             f"--motion-playback {args.motion_playback} and a hand-over to '{name}' at the "
             "clip's end: give one of them"
         )
+    if args.after_clip_blend is None:
+        args.after_clip_blend = 0.0  # rl_sar's: at once
     if not args.after_clip_blend >= 0.0:
         raise ValueError(f"--after-clip-blend {args.after_clip_blend}: expected s >= 0")
     return name, policies[name]
+
+
+def _default_pose(args, policies: dict) -> tuple[str, None]:
+    """``--after-clip default-pose`` (:data:`~sim2real.deploy.rig.after_clip.DEFAULT_POSE`):
+    ``(name, None)``, the policy off and home held at the clip's end, ramped to over
+    ``--after-clip-blend`` s (default :data:`~sim2real.deploy.rig.after_clip.DEFAULT_POSE_RAMP_S`).
+
+    Raises:
+        ValueError: ``--operator``, ``--motion-playback`` or a second ``--policy`` given too, a
+            ``--policy`` of that name, ``--envs`` other than 1, a negative ramp.
+    """
+    if DEFAULT_POSE in policies:
+        raise ValueError(
+            f"--policy {DEFAULT_POSE}=...: that name is --after-clip's hold at the home pose; "
+            "name the policy otherwise"
+        )
+    for given, what in (
+        (getattr(args, "operator", None), "--operator"),
+        (args.motion_playback, f"--motion-playback {args.motion_playback}"),
+        (len(policies) > 1 or None, f"a second --policy ({list(policies)[1:]})"),
+    ):
+        if given:
+            raise ValueError(
+                f"--after-clip {DEFAULT_POSE} and {what}: at the clip's end the policy is off "
+                "and home held; give one of them"
+            )
+    if args.envs != 1:
+        raise ValueError(
+            f"--after-clip {DEFAULT_POSE}: one robot: --envs must be 1, got {args.envs}"
+        )
+    if args.after_clip_blend is None:
+        args.after_clip_blend = DEFAULT_POSE_RAMP_S
+    if not args.after_clip_blend >= 0.0:
+        raise ValueError(f"--after-clip-blend {args.after_clip_blend}: expected s >= 0")
+    return DEFAULT_POSE, None

@@ -201,15 +201,18 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="hand the robot to the policy --policy NAME=FILE at the clip's end, as rl_sar's "
         "fsm hands its dance to its locomotion policy (default: a clip run's second --policy, "
-        "without --operator); one robot (--envs 1)",
+        "without --operator); 'default-pose': no second policy, the policy off and the PD "
+        "loop holding the home pose, ramped to from its last target (unitree_rl_gym's "
+        "deploy); one robot (--envs 1)",
     )
     p.add_argument(
         "--after-clip-blend",
         type=float,
-        default=0.0,
+        default=None,
         metavar="S",
         help="s the hand-over of --after-clip blends the targets over (default 0: at once, as "
-        "rl_sar's)",
+        "rl_sar's); with default-pose, s of the ramp to home (default 2, unitree_rl_gym's "
+        "move_to_default_pos)",
     )
     p.add_argument(
         "--motion-stand-s",

@@ -143,6 +143,11 @@ class RampIn:
         home: (n,) rad. envs: (envs,) bool. ticks: control periods of the ramp (>= 1).
         speeds: (n,) bool, the velocity-driven joints (a wheel: its target is a speed, its angle
             no place to ramp from): held at their home entry, 0 rad/s. None: none.
+        running: the envs ramp while RUNNING instead (the policy's targets replaced) and stay
+            at home once there, for as long as they stay RUNNING: the policy off, the PD loop
+            holding the home pose (unitree_rl_gym ``deploy/deploy_real/deploy_real.py``,
+            ``move_to_default_pos`` then ``default_pos_state``; a clip's end,
+            :mod:`sim2real.deploy.rig.after_clip`).
     """
 
     def __init__(
@@ -152,19 +157,22 @@ class RampIn:
         envs: np.ndarray,
         ticks: int,
         speeds: np.ndarray | None = None,
+        running: bool = False,
     ):
         self.start = np.array(start, dtype=np.float64)
         self.home = np.asarray(home, dtype=np.float64)
         if speeds is not None:
             self.start[:, speeds] = self.home[speeds]
         self.envs, self.ticks, self.done = np.asarray(envs, dtype=bool).copy(), max(1, ticks), 0
+        self.mode, self.hold = (RUNNING, True) if running else (RAMP_IN, False)
 
     def shape(self, target: np.ndarray, mode: np.ndarray) -> bool:
         """Write the ramp's target of this tick into ``target`` ((envs, n), rad) for the envs
-        still in RAMP_IN; True once the ramp has ended (its last tick, or no env left in it)."""
+        still in RAMP_IN (RUNNING with ``running``); True once the ramp has ended (its last
+        tick, or no env left in it; with ``running``, only the latter: home holds)."""
         self.done += 1
         a = min(1.0, self.done / self.ticks)
-        ramp = self.envs & (mode == RAMP_IN)
+        ramp = self.envs & (mode == self.mode)
         if ramp.any():
             target[ramp] = self.start[ramp] + a * (self.home - self.start[ramp])
-        return a >= 1.0 or not ramp.any()
+        return (a >= 1.0 and not self.hold) or not ramp.any()

@@ -214,14 +214,21 @@ class Runtime:
         self.spec.plan.reset_history(envs)
         self.state.last_action[envs] = 0.0
 
-    def ramp_in(self, duration: float, envs: np.ndarray | None = None) -> None:
+    def ramp_in(
+        self, duration: float, envs: np.ndarray | None = None, running: bool = False
+    ) -> None:
         """After :meth:`reset_faults` or :meth:`restart`: the envs of ``envs`` (bool (envs,);
         default all) approach home in ``duration`` s along a line from their estimated pose
-        (:class:`~sim2real.deploy.runtime.handover.RampIn`; position mode only)."""
-        if self.mode_name == "position" and duration > 0:
+        (:class:`~sim2real.deploy.runtime.handover.RampIn`; position mode only). ``running``:
+        the RUNNING envs do, from the last tick's target (the policy's last PD target: the
+        torque it held the robot with does not vanish in one tick), the policy's targets
+        discarded, and hold home after it for as long as they stay RUNNING (the policy off;
+        ``duration`` 0: home at once)."""
+        if self.mode_name == "position" and (duration > 0 or running):
             mask = np.ones(self.envs, bool) if envs is None else np.asarray(envs, dtype=bool)
             ticks, speeds = round(duration / self.dt), self.robot.velocity_driven  # wheels: 0 rad/s
-            self.ramp = RampIn(self.state.q, self.supervision.home, mask, ticks, speeds)
+            home, start = self.supervision.home, self._target if running else self.state.q
+            self.ramp = RampIn(start, home, mask, ticks, speeds, running=running)
 
     def switch_policy(self, policy, blend_time: float = 0.0) -> None:
         """Hand control to ``policy`` between ticks, its targets blended in over ``blend_time``

@@ -192,6 +192,27 @@ def test_isaac_lab_env_yaml_gives_the_period_and_the_standing_share(tmp_path):
         domain_toml(tmp_path / "bad" / "params" / "env.yaml")
 
 
+def test_isaac_lab_heading_commands_are_read_as_the_command_manager_gives_them(tmp_path):
+    """Isaac Lab's UniformVelocityCommandCfg with heading_command on: the soak draws headings
+    for rel_heading_envs of its commands and gives the policy clip(stiffness x error) within
+    ranges.ang_vel_z, as ``_update_command`` does; an asymmetric clip is refused by name."""
+    env = fs.isaaclab_env()
+    env["events"] = {}
+    command = env["commands"]["base_velocity"]
+    command.update(heading_command=True, heading_control_stiffness=0.5, rel_heading_envs=0.25)
+    command["ranges"].update(ang_vel_z=(-1.0, 1.0), heading=(-3.14, 3.14))
+    fs.write_isaaclab_run(tmp_path / "run", env, 48, 12)
+    text = domain_toml(tmp_path / "run" / "params" / "env.yaml")
+    commands = load_ranges_text(text, "env.yaml", load_robot("h1")).commands
+    assert commands.heading_command and commands.heading == (-3.14, 3.14)
+    assert (commands.heading_stiffness, commands.max_yaw_rate) == (0.5, 1.0)
+    assert commands.heading_fraction == 0.25
+    command["ranges"]["ang_vel_z"] = (-0.5, 1.0)
+    fs.write_isaaclab_run(tmp_path / "bad", env, 48, 12)
+    with pytest.raises(ValueError, match=r"ranges.ang_vel_z: a heading command's yaw-rate clip"):
+        domain_toml(tmp_path / "bad" / "params" / "env.yaml")
+
+
 @dataclass
 class UniformVelocityCommandCfg:
     """mjlab's command term config, as far as the dump shows it."""

@@ -122,6 +122,46 @@ def _schedule(r: Reading, where: str, command: dict) -> None:
             r.set("commands", "period", period)
     if command.get("rel_standing_envs") is not None:
         zero_fraction(r, f"{where}.rel_standing_envs", command["rel_standing_envs"])
+    if command.get("heading_command"):
+        _heading(r, where, command)
+
+
+def _heading(r: Reading, where: str, command: dict) -> None:
+    """A heading command (Isaac Lab's and mjlab's ``UniformVelocityCommand._update_command``:
+    for the ``rel_heading_envs`` share of the envs, ``ang_vel_z = clip(heading_control_stiffness
+    * wrap_to_pi(heading - heading_w), *ranges.ang_vel_z)`` each step, the heading drawn from
+    ``ranges.heading`` at each resample) as the ``[commands]`` heading keys; a clip that is not
+    symmetric about 0, which the soak's ``max_yaw_rate`` cannot state, is refused by name."""
+    ranges = command.get("ranges") or {}
+    yaw = ranges.get("ang_vel_z", ranges.get("ang_vel_yaw"))
+    heading = range_text(r, f"{where}.ranges.heading", ranges.get("heading"))
+    clip = range_text(r, f"{where}.ranges.ang_vel_z", yaw)
+    k = command.get("heading_control_stiffness", 1.0)  # Isaac Lab's and mjlab's default
+    share = command.get("rel_heading_envs", 1.0)  # the same
+    if heading is None or clip is None:
+        return
+    lo, hi = (float(v) for v in yaw)
+    if not (lo == -hi and hi > 0):
+        r.refused.append(
+            f"{where}.ranges.ang_vel_z: a heading command's yaw-rate clip must be symmetric "
+            f"about 0 (the soak's max_yaw_rate), got {clip}"
+        )
+        return
+    if not (isinstance(k, int | float) and k > 0):
+        r.refused.append(f"{where}.heading_control_stiffness: expected a number > 0, got {k!r}")
+        return
+    if not (isinstance(share, int | float) and 0 <= share <= 1):
+        r.refused.append(f"{where}.rel_heading_envs: expected a share in [0, 1], got {share!r}")
+        return
+    r.set("commands", "heading_command", "true")
+    r.set("commands", "heading", heading)
+    r.set("commands", "heading_stiffness", f"{float(k):.6g}")
+    r.set("commands", "max_yaw_rate", f"{hi:.6g}")
+    r.set("commands", "heading_fraction", f"{float(share):.6g}")
+    r.notes.append(
+        f"{where}.heading_command: yaw rate = clip({float(k):g} * wrap_to_pi(heading - yaw), "
+        f"{lo:g}, {hi:g}) for a share {float(share):g} of the commands, heading {heading}"
+    )
 
 
 def env_yaml_domain(path: str | Path) -> str:

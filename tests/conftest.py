@@ -82,7 +82,9 @@ def one_torch_thread():
 
 @pytest.fixture(scope="session")
 def go2_onnx(tmp_path_factory):
-    """The shipped go2 policy (sim2real/policies/go2.pt) exported to ONNX, once per session."""
+    """The shipped go2 policy (sim2real/policies/go2.pt) exported to ONNX, once per session
+    (skips without torch, the extra 'export')."""
+    pytest.importorskip("torch")
     from tests.runtime_fixtures import shipped_onnx
 
     return shipped_onnx("go2", tmp_path_factory.mktemp("go2policy"))

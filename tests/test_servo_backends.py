@@ -35,8 +35,8 @@ pytest.importorskip("dynamixel_sdk", reason="pip install '.[servo]'")
 from sim2real.deploy.backends.servo.dynamixel import DynamixelBackend  # noqa: E402
 from sim2real.deploy.backends.servo.feetech import FeetechBackend  # noqa: E402
 
-# On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
-# suite's own workers do not starve it; it must still hold beside other jobs.
+# On the wall clock against an emulator: in a process of its own beside the suite, whose workers
+# run at a lower priority (Makefile), so they do not starve it; it must still hold beside other jobs.
 pytestmark = pytest.mark.wallclock
 
 CASES = {

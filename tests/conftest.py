@@ -18,8 +18,11 @@ REPO = Path(__file__).resolve().parent.parent
 
 def pytest_configure(config):
     """With pytest-xdist workers (``-n N``), compile the numba kernels once in the controller
-    (``tests/warm_kernels.py``) before the workers start, instead of in every worker at once."""
+    (``tests/warm_kernels.py``) before the workers start, instead of in every worker at once;
+    not when ``SIM2REAL_KERNELS_WARM`` is set (``make test`` compiles them before both its runs)."""
     if "PYTEST_XDIST_WORKER" in os.environ or not getattr(config.option, "numprocesses", 0):
+        return
+    if os.environ.get("SIM2REAL_KERNELS_WARM"):
         return
     env = dict(
         os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])
@@ -79,7 +82,9 @@ def one_torch_thread():
 
 @pytest.fixture(scope="session")
 def go2_onnx(tmp_path_factory):
-    """The shipped go2 policy (sim2real/policies/go2.pt) exported to ONNX, once per session."""
+    """The shipped go2 policy (sim2real/policies/go2.pt) exported to ONNX, once per session
+    (skips without torch, the extra 'export')."""
+    pytest.importorskip("torch")
     from tests.runtime_fixtures import shipped_onnx
 
     return shipped_onnx("go2", tmp_path_factory.mktemp("go2policy"))

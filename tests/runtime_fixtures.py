@@ -16,10 +16,22 @@ REPO = Path(__file__).resolve().parent.parent
 
 def shipped_onnx(name: str, folder: Path) -> Path:
     """The shipped policy ``sim2real/policies/<name>.pt`` exported (parity gate included) to
-    ``folder/<name>.onnx``; returns that path. Imports torch (the export) only when called."""
+    ``folder/<name>.onnx``; returns that path. Imports torch (the export) only when called.
+
+    The export runs on one torch thread: two spin-wait in OpenMP on a loaded 2-core machine
+    (PITFALLS.md), and the wall-clock tests export beside the suite (Makefile): go2's export took
+    35 CPU-s on two threads beside a load, 1.7 on one."""
+    import torch
+
     from sim2real.deploy.export import export_policy
 
-    return export_policy(REPO / "sim2real" / "policies" / f"{name}.pt", out=folder / f"{name}.onnx")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        src = REPO / "sim2real" / "policies" / f"{name}.pt"
+        return export_policy(src, out=folder / f"{name}.onnx")
+    finally:
+        torch.set_num_threads(threads)
 
 
 def adversarial_onnx(tmp_path, robot, mode, nan_probability=0.0, name="adv.onnx"):

@@ -17,8 +17,8 @@ from sim2real.deploy.backends.servo import feetech_protocol as ft_codec
 from sim2real.deploy.backends.servo.control_tables import STS3215, XM430_W350
 from sim2real.robots import load_robot
 
-# On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
-# suite's own workers do not starve it; it must still hold beside other jobs.
+# On the wall clock against an emulator: in a process of its own beside the suite, whose workers
+# run at a lower priority (Makefile), so they do not starve it; it must still hold beside other jobs.
 pytestmark = pytest.mark.wallclock
 
 scs = pytest.importorskip("scservo_sdk", reason="pip install '.[servo]'")

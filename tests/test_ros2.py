@@ -46,15 +46,14 @@ def ros_domain(monkeypatch):
 def shipped(tmp_path_factory):
     """The shipped policies exported fresh (ONNX files are built, not committed): a function
     ``name -> path`` of ``sim2real/policies/<name>.pt`` exported to a folder of this module's."""
-    from sim2real.deploy.export import export_policy
+    from tests.runtime_fixtures import shipped_onnx
 
     folder = tmp_path_factory.mktemp("shipped")
     cache: dict[str, str] = {}
 
     def path(name: str) -> str:
         if name not in cache:
-            src = os.path.join(ROOT, "sim2real", "policies", f"{name}.pt")
-            cache[name] = str(export_policy(src, out=folder / f"{name}.onnx"))
+            cache[name] = str(shipped_onnx(name, folder))
         return cache[name]
 
     return path

@@ -197,7 +197,7 @@ def test_wall_clock_counts_overruns_and_skips_missed_periods(tmp_path, arm3):
 
 
 @pytest.mark.wallclock  # a third of its wall time stalled by design: the suite's own workers
-# beside it pushed it past position mode's half (FAULTED, overrun) on a 2-core machine
+# beside it at equal priority pushed it past position mode's half (FAULTED, overrun) on 2 cores
 def test_a_transient_stall_is_ridden_through_and_named_in_the_long_ticks(tmp_path, arm3):
     """A busy computer stalls the loop 100 ms every 40 ticks (a third of the wall time): the
     drives hold the last command through each stall and the runtime keeps RUNNING (position

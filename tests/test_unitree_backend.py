@@ -31,7 +31,7 @@ from sim2real.deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmu
 from sim2real.deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa: E402
 from sim2real.deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
 from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
-from tests.runtime_fixtures import shipped_onnx, zero_action_onnx  # noqa: E402
+from tests.runtime_fixtures import zero_action_onnx  # noqa: E402
 from tests.unitree_reference import (  # noqa: E402
     crc_bitwise,
     go_lowcmd_c_struct,
@@ -39,8 +39,8 @@ from tests.unitree_reference import (  # noqa: E402
     le_words,
 )
 
-# On the wall clock against an emulator: run apart from the parallel suite (Makefile), so the
-# suite's own workers do not starve it; it must still hold beside other jobs.
+# On the wall clock against an emulator: in a process of its own beside the suite, whose workers
+# run at a lower priority (Makefile), so they do not starve it; it must still hold beside other jobs.
 pytestmark = pytest.mark.wallclock
 
 _DOMAINS = itertools.count()
@@ -63,13 +63,6 @@ def stand_onnx(go2, tmp_path_factory):
     """An ONNX policy of go2's default spec whose action is 0: the home pose, whatever it
     observes."""
     return zero_action_onnx(go2, tmp_path_factory.mktemp("unitree") / "stand.onnx")
-
-
-@pytest.fixture(scope="module")
-def go2_onnx(tmp_path_factory):
-    """The shipped Go2 policy (sim2real/policies/go2.pt), exported."""
-    pytest.importorskip("torch")
-    return shipped_onnx("go2", tmp_path_factory.mktemp("go2"))
 
 
 def _deploy_run(tmp_path, domain, policy, seconds, *extra):

@@ -20,21 +20,12 @@ import pytest
 
 pytest.importorskip("cyclonedds", reason="pip install '.[unitree]'")
 
-from tests.runtime_fixtures import shipped_onnx  # noqa: E402
-
-# On the wall clock against an emulator: apart from the parallel suite (Makefile).
+# On the wall clock against an emulator: in a process of its own beside the suite (Makefile).
 pytestmark = pytest.mark.wallclock
 
 #: s of policy the run asks for: past the emulator's first full collection (8 s after its start,
 #: 4 s into the policy) by 6 s; the emulator publishes for about 14 s.
 POLICY_SECONDS = 10.0
-
-
-@pytest.fixture(scope="module")
-def go2_onnx(tmp_path_factory):
-    """The shipped Go2 policy (sim2real/policies/go2.pt), exported."""
-    pytest.importorskip("torch")
-    return shipped_onnx("go2", tmp_path_factory.mktemp("go2hil"))
 
 
 def test_make_hil_go2_walks_ten_seconds_with_no_safe_stop(tmp_path, go2_onnx):

@@ -18,7 +18,7 @@ pytest.importorskip("cyclonedds", reason="pip install '.[unitree]'")
 from tests.motion_files import G1_FLAGS, g1_xml  # noqa: E402
 from tests.test_holosoma_wbt import _wbt  # noqa: E402
 
-# On the wall clock against an emulator: apart from the parallel suite (Makefile).
+# On the wall clock against an emulator: in a process of its own beside the suite (Makefile).
 pytestmark = pytest.mark.wallclock
 
 #: s after the first LowCmd at which the band lets go (the policy runs from about 3.5 s), and

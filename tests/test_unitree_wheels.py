@@ -26,7 +26,7 @@ from sim2real.deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa:
 from sim2real.robots import load_robot  # noqa: E402
 from tests.test_rl_sar_contract import write  # noqa: E402
 
-# On the wall clock against an emulator: apart from the parallel suite (Makefile).
+# On the wall clock against an emulator: in a process of its own beside the suite (Makefile).
 pytestmark = pytest.mark.wallclock
 
 #: The DDS domain of this test: apart from test_unitree_backend's 100-219 and the HIL test's

@@ -244,7 +244,7 @@ def test_an_exhibitions_rests_are_judged_apart_from_its_clips():
     rests' travel and guard ticks are counted apart from the clips', the plays that left their
     spot are named, and the soak's ``on_spot`` check fails with exit code 10."""
     from sim2real.eval.cli import EXIT_LEFT_SPOT, exit_code
-    from sim2real.eval.report.build import _on_spot_check
+    from sim2real.eval.report.build import on_spot_check
     from sim2real.eval.soak.exhibition import clips_and_rests
 
     plays = [
@@ -258,15 +258,15 @@ def test_an_exhibitions_rests_are_judged_apart_from_its_clips():
     assert x["rests"]["count"] == 2 and x["rests"]["travel_m"] == pytest.approx(29.0)
     assert x["rests"]["worst_travel_m"] == 15.0 and x["rests"]["interventions"] == 610
     assert x["left_spot"] == [1, 2]
-    passed, message = _on_spot_check({"exhibition": {"clips_and_rests": x}})
+    passed, message = on_spot_check({"exhibition": {"clips_and_rests": x}})
     assert not passed and "plays [1, 2]" in message and "rests: 2, travel 29.00 m" in message
     report = {"checks": {"on_spot": {"passed": False, "failed_sessions": ["seed0000"]}}}
     assert exit_code(report) == EXIT_LEFT_SPOT
     still = clips_and_rests([_play(0.1, 0.05, 0.1, 20, 3), _play(0.1, 0.05, 0.05, 20, 3)])
     assert (
-        still["left_spot"] == [] and _on_spot_check({"exhibition": {"clips_and_rests": still}})[0]
+        still["left_spot"] == [] and on_spot_check({"exhibition": {"clips_and_rests": still}})[0]
     )
-    assert _on_spot_check({"exhibition": None}) == (True, "no motion clip: not judged")
+    assert on_spot_check({"exhibition": None}) == (True, "no motion clip: not judged")
 
 
 def test_an_exhibition_on_the_rig_logs_each_plays_travel_and_rest(go2, go2_onnx, tmp_path):

@@ -156,7 +156,11 @@ def parse_terrain_option(args) -> None:
 
 
 def _add_task_options(p: argparse.ArgumentParser) -> None:
-    """Add the task options: the legged velocity command and heading hold, the reach goals."""
+    """Add the task options: the legged velocity command and heading hold, the terrain, the
+    reach goals; a clip's (:func:`_add_motion_options`) and a camera's
+    (:func:`_add_camera_options`)."""
+    _add_motion_options(p)
+    _add_camera_options(p)
     p.add_argument(
         "--command",
         default=None,
@@ -172,6 +176,26 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         "clipped to 1 rad/s; legged_gym's heading command, default %(default)s); 0: give the "
         "policy the command as it is",
     )
+    p.add_argument(
+        "--terrain",
+        default=None,
+        metavar="KIND:SIZE|KIND@LEVEL",
+        help="--backend sim, legged robots: the robot starts on legged_gym terrain tiles of one "
+        "kind instead of the plane (stairs_up:0.10 m steps, stairs_down:0.10, slope_up:15deg, "
+        "slope_down:15deg, rough_slope@5, discrete:0.10; sim2real/eval/world/terrain.py)",
+    )
+    p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
+    p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
+    p.add_argument(
+        "--success-time",
+        type=float,
+        default=3.0,
+        help="a goal counts as reached within this many seconds",
+    )
+
+
+def _add_motion_options(p: argparse.ArgumentParser) -> None:
+    """Add a motion-tracking policy's options: the clip, its rate, what follows it, its start."""
     p.add_argument(
         "--motion",
         default=None,
@@ -222,13 +246,17 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         help="s of --motion-playback stand's transition to home (holosoma's default 2)",
     )
     p.add_argument(
-        "--terrain",
-        default=None,
-        metavar="KIND:SIZE|KIND@LEVEL",
-        help="--backend sim, legged robots: the robot starts on legged_gym terrain tiles of one "
-        "kind instead of the plane (stairs_up:0.10 m steps, stairs_down:0.10, slope_up:15deg, "
-        "slope_down:15deg, rough_slope@5, discrete:0.10; sim2real/eval/world/terrain.py)",
+        "--motion-start-after",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="s of RUNNING before the clip starts, the policy holding its first frame meanwhile "
+        "(as the operator starts a clip from a stand; a robot let off its gantry first)",
     )
+
+
+def _add_camera_options(p: argparse.ArgumentParser) -> None:
+    """Add a depth camera's options (``--backend sim``): its rate, latency and faults."""
     p.add_argument(
         "--camera-rate",
         type=float,
@@ -251,22 +279,6 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
         default="none",
         help="--backend sim: 'drawn', the run's camera faults (dropped, late and frozen frames, "
         "a covered lens, a knocked mount) drawn from --seed (CameraFaultRanges); default none",
-    )
-    p.add_argument(
-        "--motion-start-after",
-        type=float,
-        default=0.0,
-        metavar="S",
-        help="s of RUNNING before the clip starts, the policy holding its first frame meanwhile "
-        "(as the operator starts a clip from a stand; a robot let off its gantry first)",
-    )
-    p.add_argument("--goal-period", type=float, default=4.0, help="s between new goals")
-    p.add_argument("--goal", default=None, help="fixed goal X,Y,Z (m, base frame)")
-    p.add_argument(
-        "--success-time",
-        type=float,
-        default=3.0,
-        help="a goal counts as reached within this many seconds",
     )
 
 

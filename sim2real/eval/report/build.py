@@ -83,12 +83,12 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
             not result["diverged"],
             f"simulation diverged: {result['diverged']}" if result["diverged"] else "no divergence",
         ),
-        "on_spot": _on_spot_check(result),
+        "on_spot": on_spot_check(result),
     }
     return {k: {"passed": bool(p), "message": m} for k, (p, m) in checks.items()}
 
 
-def _on_spot_check(result: dict) -> tuple[bool, str]:
+def on_spot_check(result: dict) -> tuple[bool, str]:
     """``on_spot``: an exhibition's base stays where its clips take it: no clip ends, and no
     rest goes, past the bounds of :mod:`sim2real.deploy.tasks.motion.travel` (0.5 m); a session
     no clip commands passes."""

@@ -60,9 +60,12 @@ class DanceWrapper(nn.Module):
         return out
 
 
-def write_robomimic_folder(root: Path, key: str = KEY, extra: dict | None = None) -> Path:
+def write_robomimic_folder(
+    root: Path, key: str = KEY, extra: dict | None = None, gain: float = 1e-3
+) -> Path:
     """rl_sar's ``policy/`` tree under ``root``: ``g1/base.yaml`` and the folder of ``key``
-    (``config.yaml``, ``dance.pt``); ``extra``: keys laid over config.yaml's. Returns the folder."""
+    (``config.yaml``, ``dance.pt``); ``extra``: keys laid over config.yaml's; ``gain``: the
+    standard deviation of the made-up weights (:class:`DanceWrapper`). Returns the folder."""
     n = len(G1_JOINTS)
     robot = root / "policy" / "g1"
     folder = robot.joinpath(*key.split("/")[1:])
@@ -102,6 +105,6 @@ def write_robomimic_folder(root: Path, key: str = KEY, extra: dict | None = None
         **(extra or {}),
     }
     (folder / "config.yaml").write_text(yaml.safe_dump({key: config}, sort_keys=False))
-    module = torch.jit.trace(DanceWrapper().eval(), torch.zeros(1, FRAME * FRAMES))
+    module = torch.jit.trace(DanceWrapper(gain=gain).eval(), torch.zeros(1, FRAME * FRAMES))
     torch.jit.save(module, str(folder / "dance.pt"))
     return folder

@@ -21,7 +21,9 @@ beside (:func:`export_folder_torchscript`):
    (batch 1), on ``PARITY_SAMPLES`` observations uniform in [-1.2, 1.2] and edge cases (0, +-1,
    +-1.2, +-the contract's observation clip, each unit vector); tolerance ``max(TOLERANCE,
    NOISE_MULTIPLIER x`` the float32 noise floor``)`` as for every export
-   (:mod:`sim2real.deploy.export.noise_floor`); a failed candidate is kept as
+   (:mod:`sim2real.deploy.export.noise_floor`); a module whose code fixes float32 (rl_sar's
+   RoboMimic ``DanceWrapper``) has its floor measured on the exported graph in float64
+   (:mod:`sim2real.deploy.export.graph_twin`); a failed candidate is kept as
    ``<stem>.parity-failed.onnx``;
 5. the clip the contract names in the ``motion`` metadata (:func:`motion_metadata`); the
    written file read back by the same contract reader (its format and sizes); with
@@ -312,6 +314,7 @@ def export_folder_torchscript(
 
     obs = parity_rows(clips, PARITY_SAMPLES, np.random.default_rng(seed))
     floor = NoiseFloor(net, False, obs_dim)
+    floor.use_graph(model)  # a module whose code fixes float32: the graph's own floor
     err = _static_parity(model, net, obs, floor)
     figures: dict[str, Any] = {"max_abs_error": err, "samples": int(len(obs)), "batch": 1}
     exporter = (

@@ -12,9 +12,15 @@ its own observations, so a regime where float32 drifts does not loosen the other
 
     tolerance = max(TOLERANCE, NOISE_MULTIPLIER * noise floor)
 
+A stateless source that cannot run in float64 (a TorchScript module whose code fixes float32,
+rl_sar's RoboMimic dance) is measured on its exported graph instead, when the export gives it
+(:meth:`NoiseFloor.use_graph`): the graph's own float32 answer against its float64 answer
+(:mod:`sim2real.deploy.export.graph_twin`, which says why that is sound; figure
+``noise_floor_of``: 'graph').
+
 ``TOLERANCE`` (absolute) is the least tolerance, and the whole tolerance when the floor cannot be
-measured: the source cannot run in float64 (a TorchScript module whose code fixes float32, a copy
-that fails; the reason is named in the figures and messages), it is not deterministic (a second
+measured: the source cannot run in float64 and no graph twin was given or it does not run
+either (the reason is named in the figures and messages), it is not deterministic (a second
 float32 run answers differently: its noise is not rounding), or the floor is not finite or above
 ``UNSTABLE_FRACTION`` of the largest value compared (the network's float32 result is not stable:
 a tolerance scaled on it would accept anything). ``--parity-tolerance X`` (``tolerance=`` of
@@ -34,6 +40,7 @@ import torch
 from torch import nn
 
 from sim2real.deploy.export.errors import _first_line
+from sim2real.deploy.export.graph_twin import GraphTwin
 from sim2real.deploy.export.recurrent import RecurrentStepper
 
 #: The least tolerance, absolute (max abs error over all action entries).
@@ -144,26 +151,44 @@ class NoiseFloor:
         self.module, self.recurrent = module, recurrent
         self.layout = getattr(module, "layout", None)
         self.twin, self.unavailable = float64_twin(module, recurrent, obs_dim)
+        #: the exported graph run in float32 and float64 (:meth:`use_graph`), or None
+        self.graph: GraphTwin | None = None
         self.floors = {phase: _Floor() for phase in PHASES}
         #: the source answered the same observation differently twice (noise in its forward)
         self.nondeterministic = False
 
+    def use_graph(self, model) -> None:
+        """Measure the floor on ``model`` (the ONNX graph exported from the source, an
+        ``onnx.ModelProto`` taking the batch the parity runs give it) when the source itself
+        cannot run in float64 and keeps no state; else nothing changes. A graph that does not
+        run in float64 either leaves the absolute tolerance, its reason added to the note."""
+        if self.twin is not None or self.recurrent:
+            return
+        try:
+            self.graph = GraphTwin(model)
+        except ValueError as exc:
+            self.unavailable = f"{self.unavailable}; {exc}"
+
     @property
     def measured(self) -> bool:
-        return self.twin is not None and not self.nondeterministic
+        return (self.twin is not None or self.graph is not None) and not self.nondeterministic
 
     def stateless(self, obs: np.ndarray, ref32: np.ndarray, phase: str = "observations") -> None:
         """Run the twin on ``obs`` (float32 (batch, obs_dim)) and add ``|ref32 - float64|`` to
         ``phase``'s floor (``ref32``: the float32 module's answer on ``obs``, which a second
-        float32 run must repeat bit for bit, else the source is not deterministic)."""
-        if self.twin is None:
+        float32 run must repeat bit for bit, else the source is not deterministic). With a graph
+        twin (:meth:`use_graph`) the graph's own ``|float32 - float64|`` is added instead."""
+        if self.twin is None and self.graph is None:
             return
         with torch.no_grad():
             again = self.module(torch.from_numpy(obs)).numpy()
-            ref64 = self.twin(torch.from_numpy(obs).double()).numpy()
+            if self.twin is not None:
+                value32, value64 = ref32, self.twin(torch.from_numpy(obs).double()).numpy()
+            else:
+                value32, value64 = self.graph(obs)
         if not np.array_equal(again, ref32):
             self.nondeterministic = True
-        self.floors[phase].add(ref32, ref64)
+        self.floors[phase].add(value32, value64)
 
     def stepper(self, phase: str = "observations") -> FloorStepper | None:
         """A fresh :class:`FloorStepper` adding to ``phase``'s floor (None without a twin or for
@@ -180,12 +205,15 @@ class NoiseFloor:
             prefix: ``noise_floor`` (None when not measured), ``tolerance``, and
             ``tolerance_note`` when the absolute ``TOLERANCE`` applies (why); and
             ``noise_multiplier``, ``tolerance_basis``: 'explicit' (``explicit`` given),
-            'relative' (the floor measured), or 'absolute' (no float64 twin).
+            'relative' (the floor measured), or 'absolute' (no float64 twin); with a graph twin
+            ``noise_floor_of``: 'graph' (the floor is the exported graph's, :meth:`use_graph`).
         """
         out: dict = {"noise_multiplier": NOISE_MULTIPLIER}
         basis = "explicit" if explicit is not None else "relative" if self.measured else "absolute"
-        measured = self.twin is not None
+        measured = self.twin is not None or self.graph is not None
         out["tolerance_basis"] = basis
+        if self.twin is None and self.graph is not None:
+            out["noise_floor_of"] = "graph"
         for phase, prefix in PHASES.items():
             if phase == "state" and not self.recurrent:
                 continue
@@ -194,7 +222,7 @@ class NoiseFloor:
             if basis == "explicit":
                 out[f"{prefix}tolerance"] = float(explicit)
                 continue
-            note = self.unavailable or (
+            note = ("" if self.graph is not None else self.unavailable) or (
                 "the source answers the same observation differently (not deterministic): no "
                 "float32 noise floor"
                 if self.nondeterministic
@@ -244,11 +272,12 @@ def describe_tolerance(figures: dict, what: str = "", note_said: str = "") -> st
         measured = "" if floor is None else f", float32 noise floor {_num(floor)}"
         return f"tolerance {_num(tol)} from --parity-tolerance{measured}"
     if basis == "relative" and not note:
+        of = " of the ONNX graph" if figures.get("noise_floor_of") == "graph" else ""
         if k * floor >= TOLERANCE:
-            return f"tolerance {_num(tol)} = {k:g} x the float32 noise floor {_num(floor)}"
+            return f"tolerance {_num(tol)} = {k:g} x the float32 noise floor{of} {_num(floor)}"
         return (
-            f"tolerance {_num(tol)}, the least: {k:g} x the float32 noise floor {_num(floor)} is "
-            "below it"
+            f"tolerance {_num(tol)}, the least: {k:g} x the float32 noise floor{of} "
+            f"{_num(floor)} is below it"
         )
     note = note or "no float32 noise floor"
     return f"tolerance {_num(tol)}, absolute: {'as above' if note == note_said else note}"

@@ -33,6 +33,7 @@ from sim2real.deploy.backends.sim.plant import (
     SimBackend,
     SimulationDivergedError,
 )
+from sim2real.deploy.core.phase_clock import phase_clock_for
 from sim2real.deploy.core.state import Kinematics, RobotState
 from sim2real.deploy.export.noise_floor import TOLERANCE, NoiseFloor, _max_abs  # noqa: F401 - TOLERANCE
 from sim2real.deploy.export.recurrent import RecurrentPolicyModule, RecurrentStepper
@@ -135,6 +136,8 @@ def closed_loop_parity(
     rng = np.random.default_rng(seed)
     kind = robot_kind(robot)
     state = kind.state(robot, envs)  # the runtime's layout
+    # a phase-clocked policy (a motion_phase block) plays its motion on from the first tick
+    clock = phase_clock_for(spec, state, robot.control_period)
     walks = follows_velocity_commands(robot)
     if walks:  # a random velocity command per env (the base: the plant's truth, below)
         state.command[:] = rng.uniform([-0.5, -0.3, -1.0], [1.0, 0.3, 1.0], (envs, 3))
@@ -153,6 +156,8 @@ def closed_loop_parity(
         state.q[:] = plant.true_position()
         state.dq[:] = plant.true_velocity()
         state.winding_temperature[:] = plant.thermal.winding_temperature
+        if clock is not None:
+            state.motion_time[:] = tick * robot.control_period
         kin.update(state)
         if state.base is not None:
             _true_base(plant, state, tick * robot.control_period)

@@ -263,9 +263,7 @@ def test_an_exhibitions_rests_are_judged_apart_from_its_clips():
     report = {"checks": {"on_spot": {"passed": False, "failed_sessions": ["seed0000"]}}}
     assert exit_code(report) == EXIT_LEFT_SPOT
     still = clips_and_rests([_play(0.1, 0.05, 0.1, 20, 3), _play(0.1, 0.05, 0.05, 20, 3)])
-    assert (
-        still["left_spot"] == [] and on_spot_check({"exhibition": {"clips_and_rests": still}})[0]
-    )
+    assert still["left_spot"] == [] and on_spot_check({"exhibition": {"clips_and_rests": still}})[0]
     assert on_spot_check({"exhibition": None}) == (True, "no motion clip: not judged")
 
 

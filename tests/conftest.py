@@ -119,4 +119,25 @@ arm3 = _robot_fixture("arm3")
 arm6 = _robot_fixture("arm6")
 go2 = _robot_fixture("go2")
 so101 = _robot_fixture("so101")
+
+
+@pytest.fixture(scope="session")
+def go2_true_heading(tmp_path_factory):
+    """The shipped go2 with its IMU's heading drift lines (``heading_rate_sigma``,
+    ``heading_walk``) taken out: an IMU whose attitude has the true heading, as robot folders
+    imported before robot-import wrote those lines have it."""
+    import shutil
+
+    from sim2real.robots.loading import ROBOTS_DIR
+
+    folder = tmp_path_factory.mktemp("go2_true_heading") / "go2"
+    shutil.copytree(ROBOTS_DIR / "go2", folder)
+    toml = folder / "robot.toml"
+    lines = toml.read_text().splitlines(keepends=True)
+    kept = [x for x in lines if not x.startswith(("heading_rate_sigma", "heading_walk"))]
+    assert len(kept) == len(lines) - 2, "the shipped go2's heading drift lines moved"
+    toml.write_text("".join(kept))
+    return load_robot(folder)
+
+
 arm3_xm430 = _robot_fixture("arm3_xm430")

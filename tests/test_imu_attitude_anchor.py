@@ -99,9 +99,9 @@ def test_the_imus_heading_drifts_by_its_rate_bias_and_walk(go2):
     assert abs(draws.std() / rate_sigma - 1) < 0.1 and abs(draws.mean()) < 0.2 * rate_sigma
 
 
-def test_without_a_heading_drift_the_imus_heading_is_the_truths(go2):
+def test_without_a_heading_drift_the_imus_heading_is_the_truths(go2_true_heading):
     """robot.toml without ``heading_rate_sigma``: the attitude's heading is the true one."""
-    plant = SimBackend(go2, "position", envs=2, seed=3)
+    plant = SimBackend(go2_true_heading, "position", envs=2, seed=3)
     plant.reset()
     assert not plant.base_sensors.has_heading
     err, _ = _read_errors(plant, 100)

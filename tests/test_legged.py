@@ -151,12 +151,17 @@ def test_imu_white_noise_and_bias_walk_match_their_settings(go2):
         assert abs(np.var(d50) / var50 - 1) < 3 * np.sqrt(2 / d50.size), name
 
 
-def test_the_imus_own_attitude_and_the_drives_velocity_have_their_configured_errors(go2):
+def test_the_imus_own_attitude_and_the_drives_velocity_have_their_configured_errors(
+    go2_true_heading,
+):
     """The IMU's own attitude (``orientation_sigma``, ``orientation_tau``) errs from the true
     attitude by roll and pitch errors of that spread and correlation time (a Gauss-Markov
-    process: its 1 s autocorrelation exp(-1 / tau)), never in yaw; the drives' joint velocity
+    process: its 1 s autocorrelation exp(-1 / tau)), never in yaw without a heading drift
+    (``heading_rate_sigma``: tests/test_imu_attitude_anchor.py); the drives' joint velocity
     reading errs by white noise of ``velocity_noise_sigma``. An arm's frame has neither."""
     from sim2real.deploy.core.attitude import quat_multiply
+
+    go2 = go2_true_heading
 
     envs = 4
     plant = stand_plant(go2, envs=envs, seed=12)

@@ -40,7 +40,10 @@ def test_the_kind_of_a_robot_chooses_its_runtime_stages_and_task(arm3, go2):
     assert fixed.fusable and fixed.stages == (None, None) and fixed.parts() == {}
     modes = np.array([RUNNING, SAFE_STOP], dtype=np.int8)
     assert not fixed.damping(modes).any()
-    floating = LEGGED.tick_stage(SimpleNamespace(robot=go2, envs=2, backend=None))
+    no_phase = SimpleNamespace(observation_blocks=())  # a spec without a motion_phase block
+    floating = LEGGED.tick_stage(
+        SimpleNamespace(robot=go2, envs=2, backend=None, spec=no_phase, state=legged, dt=0.02)
+    )
     assert not floating.fusable and set(floating.parts()) == {"base_estimator", "fall_detector"}
     assert floating.damping(modes).tolist() == [False, True]
     assert task_entry(arm3).velocity_commands is False

@@ -190,6 +190,11 @@ class TrackingTask:
             first &= self.waited >= self.start_after - 0.5 * self.dt
             self.waited[running & ~playing] += self.dt
         if first.any():
+            # aligned to the robot as it stands now (rl_sar's Reset on entering its state): a
+            # RAMP_IN that ends on its first tick (an operator's stand-up puts the robot at home,
+            # at rest) leaves no idle tick after the stand-up, and the last alignment was the
+            # robot's lying on the floor before it (a clip turned by that heading fell < 1.4 s in)
+            self._align(runtime, first)
             clock.start(first)  # this tick read the first frame: it was time 0
             self.travel.begin(first)
         playing = running & ~np.isnan(clock.time)

@@ -31,3 +31,37 @@ def test_a_stand_up_reads_the_new_pose_at_once_through_the_imu_latency(go2):
         assert np.isfinite(acc).all() and acc[2] > 8.0, acc
         assert np.isfinite(frame.imu_stamp[0]) and frame.imu_stamp[0] <= frame.time[0]
         backend.advance()
+
+
+def test_a_clip_started_by_a_stand_up_is_aligned_to_the_robot_standing(go2, go2_onnx, tmp_path):
+    """A stand-up puts the robot at home at rest, so its RAMP_IN ends on the first tick: the
+    clip starts with no idle tick after it. It must be aligned to the robot as it stands then
+    (rl_sar's ``Reset`` on entering its state), not to the heading of the torso lying on the
+    floor (it was: the clip kept the alignment of the last tick the robot was not RUNNING)."""
+    from sim2real.deploy.core.attitude import yaw_of
+    from sim2real.deploy.core.modes import FAULTED, RUNNING
+    from sim2real.deploy.spec.motion_blocks import anchor_base_orientation
+    from tests.test_imu_attitude_anchor import _rig
+
+    rig = _rig(go2, go2_onnx, tmp_path, 0.0)
+    rt, backend, clock = rig.runtime, rig.backend, rig.task.motion
+
+    def tick():
+        rt.tick()
+        rig.monitor(rt)
+
+    while not (rt.mode[0] == RUNNING and np.isfinite(clock.time[0])):
+        tick()
+    rt.supervision.safe_stop(np.array([True]), "fall")
+    while rt.mode[0] != FAULTED:
+        tick()
+    for _ in range(10):
+        tick()
+    down = yaw_of(clock.init)[0]  # aligned while down, to the lying robot's torso
+    backend.reset(envs=np.array([True]))  # the operator stands it up (the IMU's heading anew)
+    rt.restart(np.array([True]), backend.read().position, backend.frame.time)
+    tick()
+    assert rt.mode[0] == RUNNING and clock.time[0] > 0.0  # started on that first tick
+    sensed = yaw_of(anchor_base_orientation(rt.state))[0]
+    assert abs(sensed) < 0.1 and abs(down - sensed) > 0.3  # the lying heading was another
+    assert abs(yaw_of(clock.init)[0] - sensed) < 0.05, (down, yaw_of(clock.init))

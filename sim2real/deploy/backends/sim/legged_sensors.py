@@ -225,7 +225,25 @@ class BaseSensorModel:
             return
         for buf in (self._buf_imu, self._buf_imu_stamp, self._buf_force, self._buf_contact_stamp):
             buf[:, which] = np.nan
-        self.sample(self.backend.tick, self.backend.time, force=True, envs=which)
+        tick, time = self.backend.tick, self.backend.time
+        self.sample(tick, time, force=True, envs=which)
+        self._rested(which, tick, time)
+
+    def _rested(self, which: np.ndarray, tick: int, time: float) -> None:
+        """The latency buffers of the envs ``which`` as if the robot had rested at its reset pose:
+        every earlier slot holds the reading just taken, stamped ``j`` control periods before
+        ``time`` for the slot ``j`` ticks back. Without it the IMU's next ``latency`` readings
+        were missing and a loop kept the attitude read before the reset (the soak's stand-up:
+        the heading of the robot lying on the floor, to which a motion clip was aligned)."""
+        size = self._buf_imu_stamp.shape[0]
+        now = tick % size
+        dt = self.robot.control_period
+        for j in range(1, size):
+            slot = (tick - j) % size
+            self._buf_imu[slot, which] = self._buf_imu[now, which]
+            self._buf_imu_stamp[slot, which] = self._buf_imu_stamp[now, which] - j * dt
+            self._buf_force[slot, which] = self._buf_force[now, which]
+            self._buf_contact_stamp[slot, which] = self._buf_contact_stamp[now, which] - j * dt
 
     # ------------------------------------------------------------------ per tick
     def sample(

@@ -10,9 +10,9 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
   the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
 - on the first RUNNING tick the clip starts (that tick read its time 0), or ``start_after`` s of
   RUNNING later (the policy reads the first frame meanwhile, as holosoma_inference pins the clip
-  at its first step until the operator starts it); each RUNNING tick moves it one control period
-  on; at its end the clock's playback (``stand``: a transition to home, then home; ``once``: the
-  last frame holds);
+  at its first step until the operator starts it), aligned again to the robot then (a stand-up's
+  RAMP_IN ends on its first tick); each RUNNING tick moves it one control period on; at its end
+  the clock's playback (``stand``: a transition to home, then home; ``once``: the last frame);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
 
 Each play is logged (:attr:`TrackingTask.play_log`; checkpointed with the figures, the part
@@ -190,6 +190,11 @@ class TrackingTask:
             first &= self.waited >= self.start_after - 0.5 * self.dt
             self.waited[running & ~playing] += self.dt
         if first.any():
+            # aligned to the robot as it stands now (rl_sar's Reset on entering its state): a
+            # RAMP_IN that ends on its first tick (an operator's stand-up puts the robot at home,
+            # at rest) leaves no idle tick after the stand-up, and the last alignment was the
+            # robot's lying on the floor before it (a clip turned by that heading fell < 1.4 s in)
+            self._align(runtime, first)
             clock.start(first)  # this tick read the first frame: it was time 0
             self.travel.begin(first)
         playing = running & ~np.isnan(clock.time)

@@ -3,8 +3,8 @@ restart after the robot was moved, an operator's reset of latched faults), the t
 bottom in :meth:`Runtime.tick`). It delegates by name to its stages: the state dict to
 :class:`~.state.RuntimeState`, the run with the garbage collector frozen to
 :class:`~.run_loop.RunLoop`, the part of the tick a robot's base adds to its kind's
-(``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`). The package's docstring
-(:mod:`sim2real.deploy.runtime`) describes the tick and the state machine.
+(``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`); the package's docstring the
+tick and the state machine.
 """
 
 from __future__ import annotations
@@ -214,21 +214,15 @@ class Runtime:
         self.spec.plan.reset_history(envs)
         self.state.last_action[envs] = 0.0
 
-    def ramp_in(
-        self, duration: float, envs: np.ndarray | None = None, running: bool = False
-    ) -> None:
-        """After :meth:`reset_faults` or :meth:`restart`: the envs of ``envs`` (bool (envs,);
-        default all) approach home in ``duration`` s along a line from their estimated pose
-        (:class:`~sim2real.deploy.runtime.handover.RampIn`; position mode only). ``running``:
-        the RUNNING envs do, from the last tick's target (the policy's last PD target: the
-        torque it held the robot with does not vanish in one tick), the policy's targets
-        discarded, and hold home after it for as long as they stay RUNNING (the policy off;
-        ``duration`` 0: home at once)."""
+    def ramp_in(self, duration: float, envs=None, running: bool = False) -> None:
+        """After :meth:`reset_faults` or :meth:`restart`: ``envs`` (bool (envs,); default all)
+        go home in ``duration`` s from their estimated pose (position mode; ``RampIn``).
+        ``running``: RUNNING envs, from the last target, then hold home (the policy off)."""
         if self.mode_name == "position" and (duration > 0 or running):
             mask = np.ones(self.envs, bool) if envs is None else np.asarray(envs, dtype=bool)
             ticks, speeds = round(duration / self.dt), self.robot.velocity_driven  # wheels: 0 rad/s
-            home, start = self.supervision.home, self._target if running else self.state.q
-            self.ramp = RampIn(start, home, mask, ticks, speeds, running=running)
+            start = self._target if running else self.state.q  # the last PD target: no torque drop
+            self.ramp = RampIn(start, self.supervision.home, mask, ticks, speeds, running=running)
 
     def switch_policy(self, policy, blend_time: float = 0.0) -> None:
         """Hand control to ``policy`` between ticks, its targets blended in over ``blend_time``

@@ -17,14 +17,10 @@ beside (:func:`export_folder_torchscript`):
    batch 1, no metadata but the source's hash, the tool versions and the parity figures: no
    ``policy_spec``, so the folder's contract stays what the runtime reads), written under a
    temporary name beside the source;
-4. the parity gate: ONNX Runtime against the TorchScript module, one observation at a time
-   (batch 1), on ``PARITY_SAMPLES`` observations uniform in [-1.2, 1.2] and edge cases (0, +-1,
-   +-1.2, +-the contract's observation clip, each unit vector); tolerance ``max(TOLERANCE,
-   NOISE_MULTIPLIER x`` the float32 noise floor``)`` as for every export
-   (:mod:`sim2real.deploy.export.noise_floor`); a module whose code fixes float32 (rl_sar's
-   RoboMimic ``DanceWrapper``) has its floor measured on the exported graph in float64
-   (:mod:`sim2real.deploy.export.graph_twin`); a failed candidate is kept as
-   ``<stem>.parity-failed.onnx``;
+4. the parity gate, ONNX Runtime against the module at batch 1 on ``PARITY_SAMPLES`` uniform
+   and edge-case observations, within ``NOISE_MULTIPLIER x`` the float32 noise floor
+   (:mod:`~sim2real.deploy.export.noise_floor`; of a module that fixes float32, the exported
+   graph's in float64: :mod:`~sim2real.deploy.export.graph_twin`); a failure kept aside;
 5. the clip the contract names in the ``motion`` metadata (:func:`motion_metadata`); the
    written file read back by the same contract reader (its format and sizes); with
    ``--robot``, loaded by the runtime (:class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy`:

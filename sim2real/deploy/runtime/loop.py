@@ -3,8 +3,7 @@ restart after the robot was moved, an operator's reset of latched faults), the t
 bottom in :meth:`Runtime.tick`). It delegates by name to its stages: the state dict to
 :class:`~.state.RuntimeState`, the run with the garbage collector frozen to
 :class:`~.run_loop.RunLoop`, the part of the tick a robot's base adds to its kind's
-(``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`); the package's docstring the
-tick and the state machine.
+(``kind.tick_stage``, :mod:`sim2real.deploy.kinds.legged_tick`); the package's, the tick.
 """
 
 from __future__ import annotations

@@ -34,6 +34,27 @@ TERMS = ["whole_body_tracking/motion_command", "whole_body_tracking/motion_ancho
 CLIP = "clip_60hz.csv"
 
 
+def write_g1_base(robot: Path, default_dof_pos: list, **extra) -> None:
+    """rl_sar's ``policy/g1/base.yaml`` in ``robot`` (the ``g1`` folder): the G1's 29 joints in
+    their own order, at ``default_dof_pos``; ``extra``: keys added (as rl_sar's base files carry
+    ``joint_controller_names``)."""
+    n = len(G1_JOINTS)
+    base = {
+        "dt": 0.005,
+        "decimation": 4,
+        "fixed_kp": [100.0] * n,
+        "fixed_kd": [2.0] * n,
+        "num_of_dofs": n,
+        "wheel_indices": [],
+        "torque_limits": [300.0] * n,
+        "default_dof_pos": default_dof_pos,
+        "joint_names": G1_JOINTS,
+        **extra,
+        "joint_mapping": list(range(n)),
+    }
+    (robot / "base.yaml").write_text(yaml.safe_dump({"g1": base}, sort_keys=False))
+
+
 def write_tracking_folder(root: Path, name: str = "dance_small", frames: int = 181) -> Path:
     """rl_sar's ``policy/`` tree under ``root`` with ``g1/base.yaml`` and the tracking folder
     ``g1/whole_body_tracking/<name>`` (config.yaml, policy.pt, the clip); returns that folder."""
@@ -43,20 +64,11 @@ def write_tracking_folder(root: Path, name: str = "dance_small", frames: int = 1
     robot = root / "policy" / "g1"
     folder = robot / "whole_body_tracking" / name
     folder.mkdir(parents=True, exist_ok=True)
-    base = {
-        "dt": 0.005,
-        "decimation": 4,
-        "fixed_kp": [100.0] * n,
-        "fixed_kd": [2.0] * n,
-        "num_of_dofs": n,
-        "wheel_indices": [],
-        "torque_limits": [300.0] * n,
-        "default_dof_pos": [0.0] * n,
-        "joint_names": G1_JOINTS,
-        "joint_controller_names": [j.replace("_joint", "_controller") for j in G1_JOINTS],
-        "joint_mapping": list(range(n)),
-    }
-    (robot / "base.yaml").write_text(yaml.safe_dump({"g1": base}, sort_keys=False))
+    write_g1_base(
+        robot,
+        [0.0] * n,
+        joint_controller_names=[j.replace("_joint", "_controller") for j in G1_JOINTS],
+    )
     config = {
         "model_name": "policy.pt",
         "num_observations": 58 + 6 + 3 + 3 * n,

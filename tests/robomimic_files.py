@@ -19,7 +19,7 @@ import torch
 import yaml
 from torch import nn
 
-from tests.rl_sar_files import G1_JOINTS
+from tests.rl_sar_files import G1_JOINTS, write_g1_base
 
 #: RoboMimic_Deploy's ``dof23_index`` (policy/dance/config/Dance.yaml): the G1 joints it drives.
 DOF23 = list(range(19)) + [22, 23, 24, 25]
@@ -70,19 +70,8 @@ def write_robomimic_folder(
     robot = root / "policy" / "g1"
     folder = robot.joinpath(*key.split("/")[1:])
     folder.mkdir(parents=True, exist_ok=True)
-    base = {
-        "dt": 0.005,
-        "decimation": 4,
-        "fixed_kp": [100.0] * n,
-        "fixed_kd": [2.0] * n,
-        "num_of_dofs": n,
-        "wheel_indices": [],
-        "torque_limits": [300.0] * n,
-        "default_dof_pos": [-0.1, 0, 0, 0.3, -0.2, 0] * 2 + [0.0] * 17,
-        "joint_names": G1_JOINTS,
-        "joint_mapping": list(range(n)),
-    }
-    (robot / "base.yaml").write_text(yaml.safe_dump({"g1": base}, sort_keys=False))
+    home = [-0.1, 0, 0, 0.3, -0.2, 0] * 2 + [0.0] * 17
+    write_g1_base(robot, home)
     config = {
         "model_name": "dance.pt",
         "num_observations": FRAME,
@@ -100,7 +89,7 @@ def write_robomimic_folder(
         "ang_vel_scale": 0.25,
         "dof_pos_scale": 1.0,
         "dof_vel_scale": 0.05,
-        "default_dof_pos": base["default_dof_pos"],
+        "default_dof_pos": home,
         "joint_mapping": list(range(n)),
         **(extra or {}),
     }

@@ -36,11 +36,17 @@ def attach_camera(args, backend, spec) -> None:
 
     Raises:
         ValueError: ``--camera-source`` for a camera the policy lacks, or a hardware camera
-            that does not open or deliver (CameraError); a hardware backend without one; the
-            plant camera's refusals."""
+            that does not open or deliver (CameraError), or with ``--backend sim`` off the wall
+            clock (without ``--realtime``); a hardware backend without one; the plant camera's
+            refusals."""
     sources = getattr(args, "camera_source", None) or []
     images = getattr(spec, "images", ())
     if sources:
+        if getattr(args, "backend", None) == "sim" and not getattr(args, "realtime", False):
+            raise ValueError(
+                f"{sources[0].label}: a hardware camera delivers on the wall clock; with "
+                "--backend sim add --realtime (the plant then runs on it too)"
+            )
         attach_hardware_camera(sources, backend, images)
         return
     camera = attach_plant_camera(args, backend, spec)

@@ -62,7 +62,12 @@ def test_colour_is_put_in_the_blocks_channel_order():
 @pytest.mark.parametrize(
     ("image", "encoding", "target", "words"),
     [
-        (np.zeros((10, 16), np.uint16), "16UC1", DEPTH, "10 x 16 pixels; the policy's image block expects 12 x 16"),
+        (
+            np.zeros((10, 16), np.uint16),
+            "16UC1",
+            DEPTH,
+            "10 x 16 pixels; the policy's image block expects 12 x 16",
+        ),
         (np.full((12, 16), "1.0"), "32FC1", DEPTH, "a frame of dtype <U3; expected numbers"),
         (np.zeros((12, 16, 3), np.uint8), "bgr8", DEPTH, "a 'bgr8' picture for a depth block"),
         (np.zeros((12, 16), np.uint16), "16UC1", RGB, "'16UC1' depth for a rgb block"),
@@ -194,12 +199,14 @@ def test_a_colour_video_reaches_an_rgb_block_in_its_order_and_a_depth_block_refu
 
 # ---------------------------------------------------------------------- RealSense
 def test_realsense_without_a_device_or_recording_is_refused_in_one_line(tmp_path):
-    pytest.importorskip("pyrealsense2", reason="the extra 'realsense' (pyrealsense2) is missing")
+    rs = pytest.importorskip("pyrealsense2", reason="the extra 'realsense' is missing")
+    if len(rs.context().query_devices()):
+        pytest.skip("a RealSense is connected here: the refusal needs none")
     from sim2real.deploy.backends.camera.realsense_source import RealSenseCamera
 
     with pytest.raises(CameraError) as err:
         RealSenseCamera("", DEPTH, "--camera-source d=realsense:")
-    assert "librealsense cannot start the device's depth stream at 16x12" in one_line(err)
+    assert one_line(err).endswith("no RealSense device is connected (connected: none)")
     with pytest.raises(CameraError) as err:
         RealSenseCamera(str(tmp_path / "none.bag"), DEPTH, "src")
     assert one_line(err) == f"src: no such recording '{tmp_path / 'none.bag'}'"
@@ -333,10 +340,22 @@ def test_deploy_run_refuses_camera_sources_that_do_not_fit_in_one_line(go2, tmp_
     policy = depth_policy(go2, tmp_path)  # its camera: head_depth, 12 x 16
     base = ["--robot", "go2", "--policy", str(policy.path), "--duration", "0.1"]
     for extra, words in (
-        (["--camera-source", "head_depth=usb:0"], "--camera-source 'head_depth=usb:0': unknown camera kind 'usb'"),
-        (["--camera-source", "chin=opencv:x.mkv"], "--camera-source chin=opencv:x.mkv: a hardware camera delivers on the wall clock"),
-        (["--camera-source", "chin=opencv:x.mkv", "--realtime"], "the policy has no camera 'chin' (its images entries name ['head_depth'])"),
-        (["--camera-source", f"head_depth=opencv:{tmp_path / 'x.mkv'}", "--realtime"], "OpenCV cannot open"),
+        (
+            ["--camera-source", "head_depth=usb:0"],
+            "--camera-source 'head_depth=usb:0': unknown camera kind 'usb'",
+        ),
+        (
+            ["--camera-source", "chin=opencv:x.mkv"],
+            "--camera-source chin=opencv:x.mkv: a hardware camera delivers on the wall clock",
+        ),
+        (
+            ["--camera-source", "chin=opencv:x.mkv", "--realtime"],
+            "the policy has no camera 'chin' (its images entries name ['head_depth'])",
+        ),
+        (
+            ["--camera-source", f"head_depth=opencv:{tmp_path / 'x.mkv'}", "--realtime"],
+            "OpenCV cannot open",
+        ),
     ):
         code = deploy_run_main(base + extra)
         err = capsys.readouterr().err.strip().splitlines()

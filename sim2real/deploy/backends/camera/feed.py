@@ -80,7 +80,10 @@ class CameraFeed:
         captured at ``captured`` s (monotonic): converted and kept as the newest; a refused
         frame is kept as the error the next :meth:`fill` raises."""
         try:
-            frame, error = to_target(image, encoding, self.target, self.where, self.depth_unit), None
+            frame, error = (
+                to_target(image, encoding, self.target, self.where, self.depth_unit),
+                None,
+            )
         except CameraError as exc:
             frame, error = None, exc
         with self._new:

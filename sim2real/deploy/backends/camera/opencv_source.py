@@ -127,9 +127,7 @@ class OpenCvCamera:
         start = time.monotonic()
         while not self._stop.is_set():
             if not self.cap.grab():
-                if self.loop and not self.device and self.cap.set(
-                    self._cv2.CAP_PROP_POS_FRAMES, 0
-                ):
+                if self.loop and not self.device and self.cap.set(self._cv2.CAP_PROP_POS_FRAMES, 0):
                     start = time.monotonic()
                     continue
                 self.ended = True  # silent from now on: the runtime's stage judges it stale

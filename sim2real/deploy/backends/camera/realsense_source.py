@@ -88,8 +88,16 @@ class RealSenseCamera:
             if not Path(source).is_file():
                 raise CameraError(f"{where}: no such recording '{source}'")
             config.enable_device_from_file(str(source), repeat_playback=loop)
-        elif source:
-            config.enable_device(str(source))
+        else:  # pipeline.start waits 15 s for a device that is not there: ask first
+            serials = [d.get_info(rs.camera_info.serial_number)
+                       for d in rs.context().query_devices()]  # fmt: skip
+            if not serials or (source and source not in serials):
+                raise CameraError(
+                    f"{where}: no RealSense device{f' with serial {source}' * bool(source)} is "
+                    f"connected (connected: {serials or 'none'})"
+                )
+            if source:
+                config.enable_device(str(source))
         depth = target.kind == "depth"
         stream = rs.stream.depth if depth else rs.stream.color
         fmt = rs.format.z16 if depth else getattr(rs.format, f"{target.kind}8", rs.format.rgb8)

@@ -4,8 +4,7 @@ block and handed to the runtime (:class:`~sim2real.deploy.backends.camera.feed.C
 
 Latency. V4L2 queues frames: OpenCV's V4L2 backend requests 4 buffers
 (``DEFAULT_V4L_BUFFERS``, ``modules/videoio/src/cap_v4l.cpp``) and ``read()`` dequeues the oldest
-filled one, so a reader slower than the camera reads frames up to 4 periods old (133 ms at 30
-Hz). Two things keep the age to one frame's transfer: ``CAP_PROP_BUFFERSIZE`` 1 (the V4L2 backend
+filled one, so a reader that lags the camera reads frames up to 4 frame periods old. Two things keep the age to one frame's transfer: ``CAP_PROP_BUFFERSIZE`` 1 (the V4L2 backend
 requests that many buffers; others may ignore it), and a grab thread of our own that dequeues
 every frame as it arrives (``grab()`` blocks until the next) and keeps only the newest; the
 control loop never reads the device.

@@ -169,6 +169,34 @@ def test_a_recorded_depth_video_plays_as_a_camera_with_the_files_timestamps(cv2,
     assert index == sorted(set(index))  # newest first, never an old frame after a new one
 
 
+def test_a_recording_that_ends_feeds_the_runtime_then_goes_stale(cv2, tmp_path):
+    """The runtime's camera stage reads the hardware source as it reads the plant's camera; a
+    camera that falls silent (here a file at its end; a device unplugged alike) is stale."""
+    from sim2real.deploy.backends.camera.opencv_source import OpenCvCamera
+    from sim2real.deploy.runtime.camera import CameraInput
+
+    mm = [np.full((12, 16), 900 + 100 * k, np.uint16) for k in range(4)]
+    write_video(cv2, tmp_path / "short.mkv", mm, 25.0, depth16=True)
+    camera = OpenCvCamera(str(tmp_path / "short.mkv"), DEPTH, "src")
+    stage = CameraInput(TINY, 1, stale_limit=0.2, source=camera)
+    frame = NS(time=np.zeros(1))
+    end = time.monotonic() + 60.0
+    try:
+        camera.feed.wait_first(30.0)
+        while time.monotonic() < end:
+            frame.time[0] = time.monotonic()
+            stale = stage.update(frame)[0]
+            if camera.ended and stale:
+                break
+            time.sleep(0.01)
+    finally:
+        camera.close()
+    assert camera.ended and stage.stale[0] and stage.taken[0] >= 1
+    assert stage.repeated[0] == 0  # a new frame each time, never one again with a new stamp
+    assert stage.time_since_fresh[0] > 0.2
+    assert stage.stale_phrase(0) == "no fresh frame arrived (dropped or late)"
+
+
 def test_a_colour_video_reaches_an_rgb_block_in_its_order_and_a_depth_block_refuses_it(
     cv2, tmp_path
 ):

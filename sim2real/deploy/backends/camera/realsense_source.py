@@ -13,8 +13,10 @@ Timestamps. ``frame.get_timestamp()`` is ms in ``frame.get_frame_timestamp_domai
 ``global_time`` (the device's clock moved onto the host's system clock by librealsense, the D400
 default) and ``system_time`` (the host's clock when the frame arrived) are ms since the epoch on
 ``time.time``'s clock, so the age is ``time.time() - stamp``; ``hardware_clock`` (the device's own
-counter) and a recording's stamps go through :class:`~sim2real.deploy.backends.camera.feed.
-ClockMap`. A bag plays in real time (``playback.set_real_time(True)``), as the camera recorded it.
+counter) goes through :class:`~sim2real.deploy.backends.camera.feed.ClockMap`. A bag plays in real
+time (``playback.set_real_time(True)``), as the camera recorded it, on the recording's clock
+started when its first frame arrived: its frames keep their recorded spacing, as a video file's
+do (:mod:`~sim2real.deploy.backends.camera.opencv_source`).
 
 A grab thread waits on ``pipeline.wait_for_frames`` and keeps only the newest frame (librealsense's
 own frame queue holds one frame per stream by default: a slow reader gets the newest).
@@ -122,6 +124,7 @@ class RealSenseCamera:
         self.feed = CameraFeed(target, where, self.depth_scale)
         self.domain = None
         self._map = ClockMap()
+        self._start: float | None = None
         self._bag = bag
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="realsense", daemon=True)
@@ -131,7 +134,11 @@ class RealSenseCamera:
         """A frame's capture time, s monotonic, from its stamp (ms) in ``domain`` received at
         ``received`` s monotonic (module docstring)."""
         td = self._rs.timestamp_domain
-        if not self._bag and domain in (td.global_time, td.system_time):
+        if self._bag:  # the recording's clock, started when its first frame arrived
+            if self._start is None:
+                self._start = received - stamp_ms / 1000.0
+            return self._start + stamp_ms / 1000.0
+        if domain in (td.global_time, td.system_time):
             return received - (time.time() - stamp_ms / 1000.0)
         return self._map(stamp_ms / 1000.0, received)
 

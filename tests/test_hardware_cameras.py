@@ -84,6 +84,31 @@ def test_a_frame_the_block_cannot_read_is_refused_in_one_line(image, encoding, t
     assert words in line
 
 
+def test_a_frame_refused_mid_run_is_not_delivered_and_the_camera_goes_stale():
+    """Before the first good frame a refusal is deploy-run's error; after it, a driver that
+    turns to another resolution delivers nothing (the runtime's stage then stops the robot as
+    for a silent camera), counted in the report, never raised into the control loop."""
+    from sim2real.deploy.backends.camera.feed import CameraFeed
+
+    feed = CameraFeed(DEPTH, "src", monotonic=lambda: 5.0)
+    feed.put(np.full((12, 16), 700, np.uint16), "16UC1", 4.9)
+    frame = NS(time=np.array([100.0]))
+    feed.fill(frame)
+    assert frame.depth_stamp[0] == pytest.approx(99.9) and frame.depth_image[
+        0, 0, 0
+    ] == pytest.approx(0.7, rel=1e-6)
+    feed.put(np.zeros((480, 640), np.uint16), "16UC1", 4.95)  # another resolution
+    feed.fill(frame)
+    assert np.isnan(frame.depth_stamp[0]) and frame.depth_image[0, 0, 0] == pytest.approx(
+        0.7, rel=1e-6
+    )
+    assert feed.summary()["refused"] == 1 and "480 x 640 pixels" in feed.summary()["refusal"]
+    early = CameraFeed(DEPTH, "src")
+    early.put(np.zeros((480, 640), np.uint16), "16UC1", 1.0)
+    with pytest.raises(CameraError, match=r"^src: camera 'head_depth': a frame of 480 x 640"):
+        early.wait_first(1.0)
+
+
 @pytest.mark.parametrize(
     ("value", "words"),
     [

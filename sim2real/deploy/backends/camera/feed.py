@@ -5,8 +5,8 @@ through ``fill(frame)``, as it reads the simulated camera.
 
 Clocks. A driver thread calls :meth:`CameraFeed.put` with the frame and its capture time on this
 computer's monotonic clock (``time.monotonic``, Linux ``CLOCK_MONOTONIC``), the clock V4L2 stamps
-its buffers on. A source whose stamps are on another clock (a video file's presentation time, a
-RealSense's hardware clock, a recording's) passes them through :class:`ClockMap`, which moves
+its buffers on. A source whose stamps are on another clock (a RealSense's hardware clock, a
+driver stamping on a clock of its own) passes them through :class:`ClockMap`, which moves
 them onto the monotonic clock by the smallest receive-minus-stamp difference seen (the clocks'
 offset cancels; the least delayed frame sets it, so an age is never under the true one by more
 than that frame's transport delay). :meth:`CameraFeed.fill` writes the frame's stamp on the
@@ -17,7 +17,11 @@ counted in ``overwritten``): the runtime wants the freshest view, not a queue of
 with no new frame since the last writes a NaN stamp (nothing delivered), so the runtime's stage
 keeps its last frame's age growing and judges it stale past its limit, as it does a silent
 simulated camera. A frame the target refuses (:func:`~sim2real.deploy.backends.camera.convert.
-to_target`) is kept as the error and raised in the control thread by the next ``fill``.
+to_target`) is never delivered: before the first good frame it is the error :meth:`CameraFeed.
+wait_first` raises (deploy-run refuses the camera before the robot moves); after it, a driver
+that turns to another resolution or encoding mid-run is counted (``refused``, the last
+``refusal``'s line in the report) and, delivering nothing the policy can read, goes stale: the
+robot is safe-stopped, not left limp by an error.
 """
 
 from __future__ import annotations
@@ -58,7 +62,8 @@ class CameraFeed:
 
     Attributes:
         received: Frames put. taken: Frames the loop took. overwritten: Frames replaced before
-            the loop took them. last_age: s, the age of the last frame taken at its tick.
+            the loop took them. refused: Frames refused. refusal: The last refusal's line.
+        last_age: s, the age of the last frame taken at its tick.
     """
 
     def __init__(self, target: FrameTarget, where: str, depth_unit: float = 0.001,
@@ -72,13 +77,14 @@ class CameraFeed:
         self._captured = np.nan
         self._error: CameraError | None = None
         self._seq = self._taken_seq = 0
-        self.received = self.taken = self.overwritten = 0
+        self.received = self.taken = self.overwritten = self.refused = 0
+        self.refusal: str | None = None
         self.last_age = np.nan
 
     def put(self, image, encoding: str, captured: float) -> None:
         """A driver's frame (``encoding``, :mod:`~sim2real.deploy.backends.camera.convert`)
         captured at ``captured`` s (monotonic): converted and kept as the newest; a refused
-        frame is kept as the error the next :meth:`fill` raises."""
+        frame is counted, never delivered (module docstring)."""
         try:
             frame, error = (
                 to_target(image, encoding, self.target, self.where, self.depth_unit),
@@ -88,7 +94,7 @@ class CameraFeed:
             frame, error = None, exc
         with self._new:
             if error is not None:
-                self._error = error
+                self._refuse(error)
             else:
                 if self._seq > self._taken_seq:
                     self.overwritten += 1
@@ -97,11 +103,17 @@ class CameraFeed:
             self.received += 1
             self._new.notify_all()
 
+    def _refuse(self, error: CameraError) -> None:
+        self.refused += 1
+        self.refusal = str(error)
+        if self._image is None:  # before the first good frame: what wait_first raises
+            self._error = self._error or error
+
     def fail(self, error: CameraError) -> None:
-        """Keep ``error`` (a driver that stopped: a device unplugged) for the next
-        :meth:`fill` and :meth:`wait_first` to raise."""
+        """A frame the driver could not even decode (module docstring: refused as a frame the
+        target refuses)."""
         with self._new:
-            self._error = error
+            self._refuse(error)
             self._new.notify_all()
 
     def wait_first(self, timeout: float) -> np.ndarray:
@@ -129,10 +141,7 @@ class CameraFeed:
         """The newest frame into ``frame.depth_image`` (1, rows, columns) and its capture time
         on the frame's clock into ``frame.depth_stamp`` (1,) (made on the first call, of the
         target's dtype: float32 metres for depth; NaN: no new frame since the last call;
-        module docstring). Other ``fields``: the same under their names.
-
-        Raises:
-            CameraError: the last frame was refused or the driver failed."""
+        module docstring). Other ``fields``: the same under their names."""
         name, stamp_name = self.fields
         if getattr(frame, name, None) is None:
             dtype = np.float32 if self.target.kind == "depth" else self.target.dtype
@@ -140,8 +149,6 @@ class CameraFeed:
             setattr(frame, stamp_name, np.full(1, np.nan))
         images, stamps = getattr(frame, name), getattr(frame, stamp_name)
         with self._lock:
-            if self._error is not None:
-                raise self._error
             if self._seq == self._taken_seq:
                 stamps[0] = np.nan
                 return
@@ -153,12 +160,14 @@ class CameraFeed:
         stamps[0] = float(np.asarray(frame.time).flat[0]) - age
 
     def summary(self) -> dict:
-        """The run report's lines: the source, frames received, taken and overwritten, the
-        last taken frame's age, s."""
+        """The run report's lines: the source, frames received, taken, overwritten and refused
+        (the last refusal), the last taken frame's age, s."""
         return {
             "source": self.where,
             "received": self.received,
             "taken": self.taken,
             "overwritten": self.overwritten,
+            "refused": self.refused,
+            "refusal": self.refusal,
             "last_age_s": None if np.isnan(self.last_age) else round(float(self.last_age), 6),
         }

@@ -4,10 +4,11 @@ block and handed to the runtime (:class:`~sim2real.deploy.backends.camera.feed.C
 
 Latency. V4L2 queues frames: OpenCV's V4L2 backend requests 4 buffers
 (``DEFAULT_V4L_BUFFERS``, ``modules/videoio/src/cap_v4l.cpp``) and ``read()`` dequeues the oldest
-filled one, so a reader that lags the camera reads frames up to 4 frame periods old. Two things keep the age to one frame's transfer: ``CAP_PROP_BUFFERSIZE`` 1 (the V4L2 backend
-requests that many buffers; others may ignore it), and a grab thread of our own that dequeues
-every frame as it arrives (``grab()`` blocks until the next) and keeps only the newest; the
-control loop never reads the device.
+filled one, so a reader that lags the camera reads frames up to 4 frame periods old. Two things
+keep the age to one frame's transfer: ``CAP_PROP_BUFFERSIZE`` 1 (the V4L2 backend requests that
+many buffers; others may ignore it), and a grab thread of our own that dequeues every frame as it
+arrives (``grab()`` blocks until the next) and keeps only the newest; the control loop never
+reads the device.
 
 Timestamps. On V4L2, ``CAP_PROP_POS_MSEC`` after a ``grab()`` is the dequeued buffer's kernel
 timestamp (``cap_v4l.cpp``, ``getProperty``: ``1000 * timestamp.tv_sec + tv_usec / 1000``), taken

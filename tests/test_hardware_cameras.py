@@ -8,6 +8,7 @@ never against the wall clock."""
 
 from __future__ import annotations
 
+import importlib.util
 import time
 from types import SimpleNamespace as NS
 
@@ -22,6 +23,12 @@ from tests.test_camera import TINY, depth_policy
 from tests.test_ros2 import ros_domain  # noqa: F401 - the fixture
 
 DEPTH = FrameTarget((12, 16), "depth", "head_depth")
+#: What deploy-run says of an opencv: source where OpenCV is not installed (None: it is).
+OPENCV_MISSING = (
+    None
+    if importlib.util.find_spec("cv2")
+    else "OpenCV does not import; install the extra 'camera'"
+)
 RGB = FrameTarget((12, 16), "rgb", "front")
 
 
@@ -456,7 +463,7 @@ def test_deploy_run_refuses_camera_sources_that_do_not_fit_in_one_line(go2, tmp_
         ),
         (
             ["--camera-source", f"head_depth=opencv:{tmp_path / 'x.mkv'}", "--realtime"],
-            "OpenCV cannot open",
+            OPENCV_MISSING or "OpenCV cannot open",
         ),
     ):
         code = deploy_run_main(base + extra)

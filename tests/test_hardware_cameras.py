@@ -493,3 +493,19 @@ def test_deploy_run_feeds_the_policy_from_a_recorded_video(go2, cv2, tmp_path, c
     camera = json.loads(report.read_text())["camera"]
     assert camera["hardware"]["taken"] >= 1 and camera["frames_taken"][0] >= 1
     assert camera["hardware"]["stamp_clock"] == "file"
+
+
+def test_a_camera_policy_on_a_backend_that_renders_nothing_needs_a_camera_source(go2, tmp_path):
+    from sim2real.deploy.cli.exteroception import attach_camera
+
+    policy = depth_policy(go2, tmp_path)
+    args = NS(backend="servo", camera_source=[], camera_rate=None, camera_latency=None,
+              camera_faults="none", seed=0, realtime=True)  # fmt: skip
+    robot_bus = NS()  # a backend with no plant (no models, no datas) and no camera of its own
+    with pytest.raises(ValueError) as err:
+        attach_camera(args, robot_bus, policy.spec)
+    assert one_line(err) == (
+        "the policy reads camera 'head_depth' (depth); --backend servo has none: give "
+        "--camera-source head_depth=KIND:WHERE (opencv:INDEX, realsense:SERIAL, ros2:/TOPIC; "
+        "docs/cameras.md)"
+    )

@@ -91,6 +91,21 @@ def test_a_frame_the_block_cannot_read_is_refused_in_one_line(image, encoding, t
     assert words in line
 
 
+def test_a_v4l2_stamp_is_read_on_the_monotonic_clock_and_another_clock_is_mapped():
+    from sim2real.deploy.backends.camera.feed import ClockMap
+    from sim2real.deploy.backends.camera.opencv_source import device_capture_time
+
+    clock = ClockMap()
+    # a buffer stamped 40 ms before it was dequeued, on CLOCK_MONOTONIC: its age counts the 40 ms
+    assert device_capture_time(1000.00, 1000.04, clock) == (1000.00, "monotonic")
+    # a camera stamping on its own clock (1e6 s off): the least delayed frame sets the offset
+    assert device_capture_time(5.00, 1000.05, clock) == (pytest.approx(1000.05), "mapped")
+    assert device_capture_time(5.10, 1000.13, clock) == (pytest.approx(1000.13), "mapped")
+    # the second came 20 ms sooner after its stamp than the first: the offset is now 995.03 s
+    late, _ = device_capture_time(5.20, 1000.40, clock)  # this one came 0.17 s after its stamp
+    assert late == pytest.approx(1000.23)  # its age at arrival: 0.17 s
+
+
 def test_a_frame_refused_mid_run_is_not_delivered_and_the_camera_goes_stale():
     """Before the first good frame a refusal is deploy-run's error; after it, a driver that
     turns to another resolution delivers nothing (the runtime's stage then stops the robot as

@@ -58,6 +58,15 @@ def encoding_of(image: np.ndarray) -> str:
     return f"{image.dtype}{list(image.shape)}"
 
 
+def device_capture_time(stamp: float, received: float, clock_map: ClockMap) -> tuple[float, str]:
+    """A device frame's capture time, s monotonic, and how it was read: its V4L2 stamp ``stamp``
+    (s) as it is (``monotonic``) when it lies within ``MONOTONIC_SLACK`` of ``received`` (s,
+    monotonic), else through ``clock_map`` (``mapped``; module docstring)."""
+    if stamp > 0 and -MONOTONIC_SLACK < received - stamp < MONOTONIC_SLACK:
+        return stamp, "monotonic"  # V4L2: CLOCK_MONOTONIC, the clock of time.monotonic
+    return clock_map(stamp, received), "mapped"
+
+
 def is_device(source) -> bool:
     """An int (``/dev/videoN``'s N), a digit string or a ``/dev/video*`` path."""
     return isinstance(source, int) or str(source).isdigit() or str(source).startswith("/dev/")
@@ -118,10 +127,10 @@ class OpenCvCamera:
         stamp = self.cap.get(self._cv2.CAP_PROP_POS_MSEC) / 1000.0
         if not self.device:
             return start + stamp
-        if stamp > 0 and -MONOTONIC_SLACK < received - stamp < MONOTONIC_SLACK:
-            return stamp  # V4L2: CLOCK_MONOTONIC, the clock of time.monotonic
-        self.stamp_clock = "mapped"
-        return self._map(stamp, received)
+        captured, clock = device_capture_time(stamp, received, self._map)
+        if clock == "mapped":
+            self.stamp_clock = clock
+        return captured
 
     def _run(self) -> None:
         start = time.monotonic()

@@ -39,7 +39,12 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.backends.registry import make_backend
-from sim2real.deploy.cli.exteroception import attach_camera, attach_height_map, camera_report
+from sim2real.deploy.cli.exteroception import (
+    attach_camera,
+    attach_height_map,
+    camera_report,
+    close_camera,
+)
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
 from sim2real.deploy.cli.run_operator import (
@@ -50,7 +55,12 @@ from sim2real.deploy.cli.run_operator import (
     operator_mapping,
     parse_policies,
 )
-from sim2real.deploy.cli.run_parser import attach_vectors, build_parser, parse_terrain_option
+from sim2real.deploy.cli.run_parser import (
+    attach_vectors,
+    build_parser,
+    parse_camera_source_option,
+    parse_terrain_option,
+)
 from sim2real.deploy.cli.run_summary import print_summary
 from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.spec.drive import drive_robot
@@ -124,6 +134,7 @@ def run(args) -> int:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:
         backend.close()  # servo bus: torque off; Unitree: damped
+        close_camera(backend)  # a hardware camera's grab thread and device
 
 
 def run_policies(args, robot) -> dict:
@@ -445,6 +456,7 @@ def deploy_run_main(argv: list[str] | None = None) -> int:
             else parse_policies(args.policy)
         )
         parse_terrain_option(args)
+        parse_camera_source_option(args)
     except ValueError as exc:
         print(f"deploy-run: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -255,8 +255,35 @@ def _add_motion_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def parse_camera_source_option(args) -> None:
+    """``args.camera_source`` (``--camera-source``'s texts) made
+    :class:`~sim2real.deploy.backends.camera.options.CameraSource` values in place, after the
+    parser as :func:`parse_terrain_option` (one line and exit 3 for a bad one).
+
+    Raises:
+        ValueError: a value of another form than NAME=KIND:WHERE[,loop] (CameraError, naming
+            ``--camera-source`` and the expected form).
+    """
+    from sim2real.deploy.backends.camera.options import parse_camera_source
+
+    texts = getattr(args, "camera_source", None) or []
+    args.camera_source = [parse_camera_source(t) for t in texts]
+
+
 def _add_camera_options(p: argparse.ArgumentParser) -> None:
-    """Add a depth camera's options (``--backend sim``): its rate, latency and faults."""
+    """Add a camera's options: on hardware (any backend) the source of its frames; with
+    ``--backend sim`` and no source, the plant camera's rate, latency and faults."""
+    p.add_argument(
+        "--camera-source",
+        action="append",
+        default=[],
+        metavar="NAME=KIND:WHERE",
+        help="the frames of the policy's camera NAME (its images entry's camera) from hardware, "
+        "with any backend, in place of the plant's rendering: opencv:INDEX, opencv:/dev/videoN, "
+        "opencv:FILE (a video played at its rate), realsense:, realsense:SERIAL, "
+        "realsense:FILE.bag, ros2:/TOPIC (sensor_msgs/Image; /TOPIC/compressed: "
+        "CompressedImage); ',loop' plays a file again at its end (docs/cameras.md)",
+    )
     p.add_argument(
         "--camera-rate",
         type=float,

@@ -41,6 +41,7 @@ from sim2real.deploy.estimation.fall import FALL_TILT
 from sim2real.deploy.monitors.estimation import TRUE_FALL_HEIGHT
 from sim2real.eval.soak.falls import upright
 from sim2real.eval.world.pushes import DomainPushes, PushRanges
+from sim2real.stacks.loops.walk import Walk
 
 #: s, the gait phase's period in unitree's deploy_mujoco.py (H1, H1-2, G1)
 GAIT_PERIOD = 0.8
@@ -88,14 +89,6 @@ class Run:
     past_limit: int = 0
     quiet_ticks: int = 0
     quiet_intervened: int = 0
-
-
-class _Walk:
-    """The push schedule's view of an own loop (``DomainPushes`` reads ``ticks`` and ``mode``):
-    its ticks, always RUNNING."""
-
-    def __init__(self):
-        self.ticks, self.mode = 0, np.array([RUNNING])
 
 
 class BarePlant:
@@ -227,11 +220,12 @@ def _bare_run(
     policy's next PD target from the true state after a control period, and returns it;
     ``watch(t, d, target)`` (optional) sees each tick's true state and next target
     (:mod:`bench.guard_replay`); ``walk``: what the pushes read (``ticks``, ``mode``; default a
-    :class:`_Walk`), its ``ticks`` set here; ``pushed``: what the pushes act through (default
+    :class:`~sim2real.stacks.loops.walk.Walk`), its ``ticks`` set here; ``pushed``: what the
+    pushes act through (default
     :class:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances` on ``plant``'s model)."""
     m, d = plant.m, plant.d
     qo = robot.qpos_offset
-    walk, run = walk or _Walk(), Run()
+    walk, run = walk or Walk(), Run()
     schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
     base = pushed or SimDisturbances(robot, [m], [d])  # the plant's push methods
     for tick in range(1, round(seconds / robot.control_period) + 1):

@@ -3,7 +3,7 @@ MuJoCo loop that follows rl_sar's runtime: the own loop of ``deploy-run --terrai
 ``bench.push_reference --rl-sar``.
 
 rl_sar (fan-ziqi/rl_sar e384912) runs a policy folder, by default ``policy/go2/himloco``
-(``himloco.pt``), on unitree_mujoco's MJCF of its robot (``go2.xml``; :mod:`bench.rl_sar_robot`:
+(``himloco.pt``), on unitree_mujoco's MJCF of its robot (``go2.xml``; :mod:`.rl_sar_robot`:
 which files, and the refusal of a folder or MJCF that does not match) as its ``RL_Sim`` does
 (``src/rl_sar/src/rl_sim_mujoco.cpp``, ``library/core/rl_sdk``): the observation of
 ``config.yaml``'s terms in its order (commands x commands_scale, IMU gyro x ang_vel_scale,
@@ -26,7 +26,8 @@ height (the project's fall judges; the robot import's, else the Go2's 0.32 m). `
 ROBOT_DIR``: an imported robot's motors (effort limits, torque-speed lines at 25 degC, as the
 plant applies them); ``--sensor-noise``: its white encoder, joint-speed and gyro noise. Usage::
 
-    python -m bench.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR stairs_up:0.10 slope_up:15deg
+    python -m sim2real.stacks.loops.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR \
+        stairs_up:0.10 slope_up:15deg
 """
 
 from __future__ import annotations
@@ -38,8 +39,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from bench import rl_sar_robot
 from sim2real.eval.world.terrain import apply_terrain, parse_terrain
+from sim2real.stacks.loops import rl_sar_robot
 
 CROSSED_X = 4.0
 #: m the robot is put above its key pose on a tile (a foot sphere started inside the height
@@ -66,14 +67,14 @@ def _model(
     cfg: dict | None = None,
     robot=None,
 ):
-    """The MJCF of ``key``'s robot (:func:`bench.rl_sar_robot.mjcf`) with a floor, the tile
+    """The MJCF of ``key``'s robot (:func:`sim2real.stacks.loops.rl_sar_robot.mjcf`) with a floor, the tile
     laid in; its missing visual meshes dropped; checked against ``cfg`` (rl_sar's keys) and
-    ``robot`` (an import, :func:`bench.rl_sar_robot.check_model`). ``plant_of``: an imported
+    ``robot`` (an import, :func:`sim2real.stacks.loops.rl_sar_robot.check_model`). ``plant_of``: an imported
     robot folder whose MJCF's integrator and joints' armature, damping and friction loss replace
     the MJCF's (the plant's joint dynamics on the policy's own loop).
 
     Raises:
-        bench.rl_sar_robot.Mismatch: the MJCF missing, or not what the loop or ``robot`` needs.
+        rl_sar_robot.Mismatch: the MJCF missing, or not what the loop or ``robot`` needs.
     """
     xml = rl_sar_robot.mjcf(unitree_mujoco, key)
     spec = rl_sar_robot.load_spec(xml)
@@ -160,7 +161,7 @@ def run(
     place of rl_sar's ``dt`` (the PD law at every step, the policy at rl_sar's own rate).
     ``plant_of``: see :func:`_model`. ``guard_stop_s`` in the result: when our guard's
     hard-limit rule would have stopped the run (counted, not acted on). ``key``: rl_sar's
-    ``<robot>/<policy>`` (:mod:`bench.rl_sar_robot`: its folder in ``rl_sar``, its MJCF in
+    ``<robot>/<policy>`` (:mod:`.rl_sar_robot`: its folder in ``rl_sar``, its MJCF in
     ``unitree_mujoco``); ``robot``: the import it is compared with (default ``pushes``' robot),
     whose base body, feet and joints its MJCF must have and whose standing height judges the
     fall (without one: ``STANDING_HEIGHT``). ``stand``: s the policy runs with a zero command
@@ -173,7 +174,7 @@ def run(
     tile's centre, at rest; the policy from the first step).
 
     Raises:
-        bench.rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
+        rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
     """
     import torch
 
@@ -260,13 +261,13 @@ def run(
     past_ticks = far_ticks = 0
     period = dt * decimation
     schedule = walk = base_pushes = None
-    if pushes is not None:  # the soak's schedule on this loop's policy ticks (bench.push_loops)
-        from bench.push_loops import _Walk
+    if pushes is not None:  # the soak's schedule on this loop's policy ticks (:mod:`.walk`)
         from sim2real.deploy.backends.sim.disturbances import SimDisturbances
         from sim2real.eval.world.pushes import DomainPushes
+        from sim2real.stacks.loops.walk import Walk
 
         schedule = DomainPushes([seed], pushes[1], period)
-        walk, base_pushes = _Walk(), SimDisturbances(pushes[0], [model], [data])
+        walk, base_pushes = Walk(), SimDisturbances(pushes[0], [model], [data])
     for k in range(steps):
         command = asked * (k >= stand_steps)
         if k % decimation == 0:
@@ -344,7 +345,7 @@ def start_delay(seed: int, stand_max: float) -> float:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(prog="python -m bench.himloco_terrain_loop")
+    p = argparse.ArgumentParser(prog="python -m sim2real.stacks.loops.himloco_terrain_loop")
     p.add_argument("rl_sar", type=Path, help="an rl_sar checkout (policy/<robot>/<policy>)")
     p.add_argument("unitree_mujoco", type=Path, help="a unitree_mujoco checkout")
     p.add_argument("tiles", nargs="+", help="--terrain tiles (stairs_up:0.10, slope_up:15deg)")

@@ -22,7 +22,8 @@ standing height), the start a comparison with ``deploy-run`` gives both loops (d
 
 A crossing: the base reaches ``CROSSED_X`` m along x (the tile's rim, 4 m from its centre) without
 tipping past 1 rad or its height above the ground under it falling under 0.4 x the standing
-height (the project's fall judges; the robot import's, else the Go2's 0.32 m). ``--motors
+height (the project's fall judges; the robot's standing height, :func:`standing_height`: its
+import's, else the shipped robot's of its name, else its MJCF's ``home`` key's). ``--motors
 ROBOT_DIR``: an imported robot's motors (effort limits, torque-speed lines at 25 degC, as the
 plant applies them); ``--sensor-noise``: its white encoder, joint-speed and gyro noise. Usage::
 
@@ -48,9 +49,6 @@ CROSSED_X = 4.0
 DROP = 0.03
 #: rad, and share of the standing height: the project's fall judges
 FALL_TILT, FALL_SHARE = 1.0, 0.4
-#: m, the base's standing height of a run given no robot import: the Go2's (the CLI's default
-#: policy, HIMLoco's ``go2/himloco``)
-STANDING_HEIGHT = 0.32
 #: rl_sar's key of the CLI's default policy
 GO2_HIMLOCO = "go2/himloco"
 #: ``run``'s starts: rl_sar's get-up, or our plant's standing spawn
@@ -164,14 +162,14 @@ def run(
     ``<robot>/<policy>`` (:mod:`.rl_sar_robot`: its folder in ``rl_sar``, its MJCF in
     ``unitree_mujoco``); ``robot``: the import it is compared with (default ``pushes``' robot),
     whose base body, feet and joints its MJCF must have and whose standing height judges the
-    fall (without one: ``STANDING_HEIGHT``). ``stand``: s the policy runs with a zero command
+    fall (without one: :func:`standing_height`). ``stand``: s the policy runs with a zero command
     after the get-up before the command is given (its gait's phase at the tile's first step;
     ``seconds`` and the crossing's time count from the command). ``start``: ``get-up``
     (rl_sar's: the ``home`` key dropped ``DROP`` m onto the ground, brought to default_dof_pos
     over 1 s with ``fixed_kp``/``fixed_kd``), or ``standing`` (our plant's spawn, as
     ``deploy-run --backend sim`` starts: default_dof_pos, the base level at the standing height
-    of ``robot``, else of ``motors``' import, else ``STANDING_HEIGHT``, above the ground at the
-    tile's centre, at rest; the policy from the first step).
+    of :func:`standing_height`, above the ground at the tile's centre, at rest; the policy from
+    the first step).
 
     Raises:
         rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
@@ -180,7 +178,7 @@ def run(
 
     robot = pushes[0] if robot is None and pushes is not None else robot
     cfg, folder = rl_sar_robot.read_folder(rl_sar, key)
-    standing = STANDING_HEIGHT if robot is None else robot.config.base.standing_height
+    standing = standing_height(key, robot, motors, unitree_mujoco)
     dt, decimation, n = float(cfg["dt"]), int(cfg["decimation"]), int(cfg["num_of_dofs"])
     if timestep is not None:  # the same policy period on a finer physics step
         decimation = int(round(dt * decimation / timestep))
@@ -231,12 +229,7 @@ def run(
     if start == "standing":  # our plant's spawn: the default pose on the ground, at rest
         adr = model.jnt_qposadr[model.sensor_objid[:n]]  # the joint of each angle reading
         data.qpos[adr[mapping]] = default
-        height = standing
-        if robot is None and motors is not None:  # the plant's import of --motors
-            from sim2real.robots.loading import load_robot
-
-            height = load_robot(motors).config.base.standing_height
-        data.qpos[:7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+        data.qpos[:7] = [0.0, 0.0, standing, 1.0, 0.0, 0.0, 0.0]
         if ground is not None:
             data.qpos[2] += float(ground.height_at(0.0, 0.0))
         data.qvel[:] = 0.0
@@ -334,6 +327,33 @@ def run(
     if schedule is not None:
         out["push_times"] = list(schedule.times[0])
     return out
+
+
+def standing_height(key: str, robot=None, motors: Path | None = None, unitree_mujoco=None) -> float:
+    """m, the standing height of rl_sar's robot of ``key`` (``<robot>/<policy>``), which judges
+    its falls and places its ``standing`` start: the robot import given (``robot``, else
+    ``motors``' import), else the shipped robot of that name (``sim2real/robots/<robot>``:
+    go2's 0.3257 m), else the base height of the ``home`` key of its unitree_mujoco MJCF
+    (:func:`.rl_sar_robot.mjcf`: b2.xml's 0.5 m): never another robot's.
+
+    Raises:
+        rl_sar_robot.Mismatch: none of these (the MJCF missing or without a ``home`` key).
+    """
+    import sim2real.robots
+    from sim2real.robots.loading import load_robot
+
+    if robot is None and motors is not None:
+        robot = load_robot(motors)
+    name = key.split("/")[0]
+    if robot is None and (Path(sim2real.robots.__file__).parent / name / "robot.toml").is_file():
+        robot = load_robot(name)
+    if robot is not None:
+        return float(robot.config.base.standing_height)
+    xml = rl_sar_robot.mjcf(unitree_mujoco, key)
+    model = rl_sar_robot.load_spec(xml).compile()
+    if "home" not in [model.key(i).name for i in range(model.nkey)]:
+        raise rl_sar_robot.Mismatch(f"{xml}: keyframe 'home': none, and no import of '{name}'")
+    return float(model.key("home").qpos[2])
 
 
 def start_delay(seed: int, stand_max: float) -> float:

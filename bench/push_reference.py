@@ -44,7 +44,6 @@ import numpy as np
 from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from here)
     STOP_RAISED,
     Run,
-    load_torchscript,
     observes_base_velocity,
     plant_loop,
     runtime_loop,
@@ -53,6 +52,7 @@ from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from
 )
 from bench.push_table import sign_test, summary, survived, table, terrain_table  # noqa: F401
 from sim2real.robots.errors import Sim2RealError
+from sim2real.stacks.loops.unitree_rl_gym import load_torchscript
 
 PROG = "python -m bench.push_reference"
 #: exit code of bad input (module docstring)

@@ -16,9 +16,6 @@ STACK = register_stack(
         domain="sim2real.eval.world.legged_gym_domain:DOMAIN",
         clips=Absent("legged_gym's tasks play no clip"),
         terrain="sim2real.eval.world.terrain_ranges:TerrainRanges",
-        own_loop=Absent(
-            "unitree_rl_gym's deploy_mujoco.py loop is the push benchmark's (bench.push_loops."
-            "unitree_loop), not written apart from its harness yet"
-        ),
+        own_loop="sim2real.stacks.loops.unitree_rl_gym:controller",
     )
 )

@@ -188,6 +188,7 @@ STACK = register_stack(Stack(
 def _ninth_dist(folder: Path) -> Path:
     """``ninthstack``'s one module and the dist-info pip would write for it (its entry point in the
     group ``sim2real.stacks``), in ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
     (folder / "ninth_stack.py").write_text(textwrap.dedent(NINTH))
     info = folder / "ninth_stack-0.1.dist-info"
     info.mkdir()
@@ -232,8 +233,8 @@ def _ninth_policy(path: Path, go2) -> Path:
 def ninth(tmp_path, monkeypatch):
     """The ninth stack installed (on sys.path with its dist-info) and loaded by the registry's
     entry-point path; forgotten after the test."""
-    monkeypatch.syspath_prepend(str(_ninth_dist(tmp_path / "site")))
-    with STACK_REGISTRY.scoped():
+    with STACK_REGISTRY.scoped():  # the stacks before it, the entry points there then loaded
+        monkeypatch.syspath_prepend(str(_ninth_dist(tmp_path / "site")))
         assert "ninthstack" in STACK_REGISTRY.load_plugins()
         yield tmp_path
     sys.modules.pop("ninth_stack", None)
@@ -279,3 +280,30 @@ def test_a_ninth_stack_installed_outside_the_tree_is_read_by_a_fresh_process(tmp
     )  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert "ninthstack" in out.stdout
+
+
+def test_a_robot_kind_kept_outside_the_tree_registers_through_its_entry_point(
+    tmp_path, monkeypatch
+):
+    """The kinds' registry loads the group ``sim2real.kinds`` as the stacks' loads theirs."""
+    from sim2real.deploy.robot_kind import KIND_REGISTRY, kinds
+
+    site = tmp_path / "site"
+    (site / "ep_kind-0.1.dist-info").mkdir(parents=True)
+    (site / "seam_ep_kind.py").write_text(
+        "from sim2real.deploy.kinds import Arm, register_kind\n"
+        "register_kind(Arm(name='entry_point_arm'))\n"
+    )
+    (site / "ep_kind-0.1.dist-info" / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: ep-kind\nVersion: 0.1\n"
+    )
+    (site / "ep_kind-0.1.dist-info" / "entry_points.txt").write_text(
+        "[sim2real.kinds]\nentry_point_arm = seam_ep_kind\n"
+    )
+    with KIND_REGISTRY.scoped():
+        assert "entry_point_arm" not in kinds()
+        monkeypatch.syspath_prepend(str(site))
+        assert KIND_REGISTRY.load_plugins() == ("entry_point_arm",)
+        assert kinds()["entry_point_arm"].name == "entry_point_arm"
+    sys.modules.pop("seam_ep_kind", None)
+    assert "entry_point_arm" not in kinds()

@@ -333,3 +333,17 @@ def test_the_bare_loop_starts_as_our_plant_spawns_or_with_rl_sars_get_up(quad):
     assert abs(got_up[2] - height) > 0.005
     with pytest.raises(ValueError, match="start 'lying'"):
         run(*args, start="lying", **kw)
+
+
+def test_the_own_loop_judges_its_robot_by_its_own_standing_height(quad):
+    """rl_sar's loop of a robot judges its falls and places its standing start by that robot's
+    standing height, never the Go2's: the import given, else the shipped robot of its name, else
+    its MJCF's ``home`` key."""
+    from sim2real.stacks.loops.himloco_terrain_loop import standing_height
+
+    root, robot_dir, _ = quad
+    ours = load_robot(robot_dir).config.base.standing_height
+    assert standing_height("quad/walk", motors=robot_dir) == ours
+    assert standing_height("quad/walk", unitree_mujoco=root / "unitree_mujoco") == 0.27
+    go2 = load_robot("go2").config.base.standing_height
+    assert standing_height("go2/himloco") == go2 != 0.27

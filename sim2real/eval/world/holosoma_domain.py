@@ -222,4 +222,6 @@ def policy_domain(policy, metadata: dict) -> str | None:
 
 #: holosoma's training-domain face (the ``holosoma`` stack's, :mod:`sim2real.stacks`): the
 #: ``experiment_config`` its exports carry; no config file of its own is read.
-DOMAIN = DomainReader("holosoma's experiment_config (in its ONNX metadata)", of_policy=policy_domain)
+DOMAIN = DomainReader(
+    "holosoma's experiment_config (in its ONNX metadata)", of_policy=policy_domain
+)

@@ -102,7 +102,8 @@ def own_loop_speed(robot, files, seconds: float, command: float, settle: float):
     fell."""
     import yaml
 
-    from bench.push_reference import load_torchscript, unitree_loop
+    from bench.push_reference import unitree_loop
+    from sim2real.stacks.loops.unitree_rl_gym import load_torchscript
 
     cfg = yaml.safe_load(Path(files[0]).read_text())
     cfg["cmd_init"] = [command, 0.0, 0.0]

@@ -27,7 +27,8 @@ import mujoco
 import numpy as np
 
 from bench.push_loops import past_hard_limit, truth_loop, unitree_loop
-from bench.push_reference import _entries, _load, load_torchscript, push_ranges
+from bench.push_reference import _entries, _load, push_ranges
+from sim2real.stacks.loops.unitree_rl_gym import load_torchscript
 
 
 def replay_seed(entry, seed: int, args) -> tuple[collections.Counter, list[dict]]:

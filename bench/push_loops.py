@@ -1,12 +1,10 @@
 """The loops of the push benchmark (:mod:`bench.push_reference`): one run of a policy, walking at a
 constant command under a sequence of pushes, in its own loop on the true state or in our runtime.
 
-- :func:`unitree_loop`: the loop of unitree_rl_gym's ``deploy/deploy_mujoco/deploy_mujoco.py``,
-  written here for our robot's MJCF with torque actuators (``robot.plant_model("torque")``): the
-  observation from the true MuJoCo state (base angular velocity, projected gravity, command,
-  joint positions and velocities, last action, the 0.8-s gait phase's sine and cosine, scaled as
-  the deploy config says), the TorchScript policy the repository publishes (``motion.pt``),
-  ``tau = kp (target - q) - kd dq`` at every physics step; no estimator, guard or sensor noise.
+- :func:`unitree_loop`: unitree_rl_gym's own loop (``deploy_mujoco.py``'s control step,
+  :func:`sim2real.stacks.loops.unitree_rl_gym.controller`) on our robot's MJCF with torque
+  actuators (``robot.plant_model("torque")``): the PD law at every physics step, the true state;
+  no estimator, guard or sensor noise.
 - :func:`truth_loop`: the same loop for a policy that has no published loop of its own (the
   shipped go2, an mjlab export): its exported ONNX file and its spec's observation built from the
   true state (:meth:`sim2real.deploy.core.state.BaseState.set_truth`), the robot's PD gains.
@@ -28,7 +26,6 @@ base below ``TRUE_FALL_HEIGHT`` of its standing height or tilted past the fall t
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 
 import mujoco
@@ -41,9 +38,9 @@ from sim2real.deploy.estimation.fall import FALL_TILT
 from sim2real.deploy.monitors.estimation import TRUE_FALL_HEIGHT
 from sim2real.eval.soak.falls import upright
 from sim2real.eval.world.pushes import DomainPushes, PushRanges
+from sim2real.stacks.loops import unitree_rl_gym
+from sim2real.stacks.loops.walk import Walk
 
-#: s, the gait phase's period in unitree's deploy_mujoco.py (H1, H1-2, G1)
-GAIT_PERIOD = 0.8
 #: A run's cause when a tick of our runtime raised (a safe stop Ruckig could not plan): the run
 #: ends there and the table counts it apart, not as a stop.
 STOP_RAISED = "raised"
@@ -88,14 +85,6 @@ class Run:
     past_limit: int = 0
     quiet_ticks: int = 0
     quiet_intervened: int = 0
-
-
-class _Walk:
-    """The push schedule's view of an own loop (``DomainPushes`` reads ``ticks`` and ``mode``):
-    its ticks, always RUNNING."""
-
-    def __init__(self):
-        self.ticks, self.mode = 0, np.array([RUNNING])
 
 
 class BarePlant:
@@ -173,34 +162,6 @@ def true_upright(robot, position_z: float, quaternion: np.ndarray, vz: float = 0
     return bool(upright(_tilt(quaternion), position_z, vz, limit, standing))
 
 
-def unitree_observation(cfg: dict, qpos, qvel, last_action, t: float, command) -> np.ndarray:
-    """deploy_mujoco.py's observation (3 + 3 + 3 + 3 n + 2,) float32 from the true state."""
-    n = len(last_action)
-    phase = (t % GAIT_PERIOD) / GAIT_PERIOD
-    return np.concatenate(
-        [
-            qvel[3:6] * cfg["ang_vel_scale"],
-            projected_gravity(qpos[3:7]),  # deploy_mujoco.py's get_gravity_orientation
-            np.asarray(command) * np.array(cfg["cmd_scale"]),
-            (qpos[7 : 7 + n] - np.array(cfg["default_angles"])) * cfg["dof_pos_scale"],
-            qvel[6 : 6 + n] * cfg["dof_vel_scale"],
-            last_action,
-            [np.sin(2 * np.pi * phase), np.cos(2 * np.pi * phase)],
-        ]
-    ).astype(np.float32)
-
-
-def load_torchscript(path):
-    """unitree's published policy (TorchScript, eval mode, one thread), loaded afresh: an LSTM
-    policy keeps its memory in the module (``hidden_state``), so each run loads its own."""
-    import torch
-
-    torch.set_num_threads(1)
-    with warnings.catch_warnings():  # torch.jit.load is deprecated; unitree publishes TorchScript
-        warnings.simplefilter("ignore", FutureWarning)
-        return torch.jit.load(str(path)).eval()
-
-
 def bare_plant(robot, gains) -> BarePlant:
     """A :class:`BarePlant` of ``robot`` at its home pose, at rest, under ``gains`` (kp, kd,
     the first target)."""
@@ -227,11 +188,12 @@ def _bare_run(
     policy's next PD target from the true state after a control period, and returns it;
     ``watch(t, d, target)`` (optional) sees each tick's true state and next target
     (:mod:`bench.guard_replay`); ``walk``: what the pushes read (``ticks``, ``mode``; default a
-    :class:`_Walk`), its ``ticks`` set here; ``pushed``: what the pushes act through (default
+    :class:`~sim2real.stacks.loops.walk.Walk`), its ``ticks`` set here; ``pushed``: what the
+    pushes act through (default
     :class:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances` on ``plant``'s model)."""
     m, d = plant.m, plant.d
     qo = robot.qpos_offset
-    walk, run = walk or _Walk(), Run()
+    walk, run = walk or Walk(), Run()
     schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
     base = pushed or SimDisturbances(robot, [m], [d])  # the plant's push methods
     for tick in range(1, round(seconds / robot.control_period) + 1):
@@ -262,24 +224,10 @@ def unitree_loop(
     under ``pushes`` (a :class:`PushRanges`; None: none) for ``seconds``; returns a :class:`Run`.
     ``path``: a list that receives ``(t, x, y)`` (s, m) of the base after each control tick;
     ``watch``: as :func:`_bare_run`'s."""
-    import torch
-
-    command = cfg["cmd_init"] if command is None else command
     default = np.array(cfg["default_angles"], float)
     kp, kd = np.array(cfg["kps"], float), np.array(cfg["kds"], float)
-    action = np.zeros(len(default), dtype=np.float32)
-
     plant = bare_plant(robot, (kp, kd, default.copy()))
-    d = plant.d
-
-    def act(t):
-        nonlocal action
-        with torch.no_grad():
-            obs = unitree_observation(cfg, d.qpos, d.qvel, action, t, command)
-            action = net(torch.from_numpy(obs)[None]).numpy()[0].astype(np.float32)
-        plant.write(action * cfg["action_scale"] + default)
-        return plant.target
-
+    act = unitree_rl_gym.controller(cfg, net, plant, command)
     return _bare_run(robot, plant, seed, seconds, pushes, act, path, watch)
 
 

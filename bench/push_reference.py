@@ -44,7 +44,6 @@ import numpy as np
 from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from here)
     STOP_RAISED,
     Run,
-    load_torchscript,
     observes_base_velocity,
     plant_loop,
     runtime_loop,
@@ -53,6 +52,7 @@ from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from
 )
 from bench.push_table import sign_test, summary, survived, table, terrain_table  # noqa: F401
 from sim2real.robots.errors import Sim2RealError
+from sim2real.stacks.loops.unitree_rl_gym import load_torchscript
 
 PROG = "python -m bench.push_reference"
 #: exit code of bad input (module docstring)
@@ -73,7 +73,7 @@ class Entry:
     the ONNX's spec); ``domain``: a ranges file whose ``[pushes]`` it runs (None: the ONNX's);
     ``tracking``: a whole-body tracking policy's rl_sar folder (its clip played in rl_sar's loop
     and ours, :mod:`bench.push_tracking`; None: a walking policy); ``rl_sar``: (rl_sar, unitree_mujoco)
-    checkouts whose HIMLoco loop is its own (:mod:`bench.himloco_terrain_loop`)."""
+    checkouts whose HIMLoco loop is its own (:mod:`sim2real.stacks.loops.himloco_terrain_loop`)."""
 
     name: str
     robot: str
@@ -196,10 +196,11 @@ def check_terrain(seeds: list[int], args) -> None:
 
 
 def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
-    """rl_sar's own loop of ``entry``'s robot (:mod:`bench.himloco_terrain_loop`: rl_sar's runtime
-    on unitree_mujoco's MJCF of ``entry.rl_sar_key``'s robot, true state) under the same pushes on
-    the same tiles, as a :class:`Run`."""
-    from bench.himloco_terrain_loop import run
+    """rl_sar's own loop of ``entry``'s robot
+    (:mod:`sim2real.stacks.loops.himloco_terrain_loop`: rl_sar's runtime on unitree_mujoco's MJCF
+    of ``entry.rl_sar_key``'s robot, true state) under the same pushes on the same tiles, as a
+    :class:`Run`."""
+    from sim2real.stacks.loops.himloco_terrain_loop import run
 
     vx = float(args.command.split(",")[0])  # vy and yaw 0 (checked by _entries)
     ours = {}
@@ -319,14 +320,14 @@ def _entries(args, p: argparse.ArgumentParser) -> list[Entry]:
 
 def rl_sar_entry(entry: Entry, dirs: tuple[Path, Path], args, error: Callable) -> Entry:
     """``entry`` with its rl_sar own loop (``--rl-sar NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR``):
-    rl_sar's MuJoCo loop of the robot given (:mod:`bench.himloco_terrain_loop`), the policy
+    rl_sar's MuJoCo loop of the robot given (:mod:`sim2real.stacks.loops.himloco_terrain_loop`), the policy
     folder ``RL_SAR_DIR/policy/<robot>/<policy>`` of the key of the rl_sar config.yaml beside its
     ONNX file (its TorchScript, joint mapping, default pose, gains, scales, decimation) on
     unitree_mujoco's ``unitree_robots/<robot>/<robot>.xml``, which must hold the ``--user``
-    import's base body, feet and joints (:mod:`bench.rl_sar_robot`); ``error(message)`` for a
+    import's base body, feet and joints (:mod:`sim2real.stacks.loops.rl_sar_robot`); ``error(message)`` for a
     mismatch (one line naming ``--rl-sar`` and what is missing)."""
-    from bench import rl_sar_robot
     from sim2real.robots import load_robot
+    from sim2real.stacks.loops import rl_sar_robot
 
     try:
         key = rl_sar_robot.policy_key(entry.policy)
@@ -368,7 +369,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--window", type=float, default=None, help="s, a force push's duration")
     p.add_argument(
         "--rl-sar", action="append", default=[], metavar="NAME=RL_SAR_DIR,UNITREE_MUJOCO_DIR",
-        help="a --user's own loop: rl_sar's loop of its robot (bench.himloco_terrain_loop)",
+        help="a --user's own loop: rl_sar's loop of its robot (sim2real.stacks.loops.himloco_terrain_loop)",
     )  # fmt: skip
     p.add_argument(
         "--terrain", default=None, metavar="KIND:SIZE|KIND@LEVEL|RANGES.toml",
@@ -379,7 +380,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rl-sar-plant", action="store_true",
         help="the --rl-sar loop on our plant: the robot folder's motors, sensor noise, physics "
-        "step, integrator and joints (bench.himloco_terrain_loop --motors --sensor-noise "
+        "step, integrator and joints (sim2real.stacks.loops.himloco_terrain_loop --motors --sensor-noise "
         "--plant-of --timestep)",
     )  # fmt: skip
     p.add_argument("--jobs", type=int, default=1, help="processes")

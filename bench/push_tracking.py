@@ -2,9 +2,10 @@
 ``--tracking``): one play of its clip under a sequence of pushes, in rl_sar's loop on the true
 state or in our runtime.
 
-- :func:`rl_sar_loop`: rl_sar's tracking loop (:mod:`bench.rl_sar_tracking`: its observation,
-  clip, clock and yaw alignment, :mod:`bench.rl_sar_motion`; the TorchScript ``policy.pt`` of the
-  folder, its ``rl_kp``/``rl_kd``, ``action_scale`` and ``default_dof_pos``), on our robot's
+- :func:`rl_sar_loop`: rl_sar's tracking loop (:mod:`sim2real.stacks.loops.rl_sar_tracking`: its
+  observation, clip, clock and yaw alignment, :mod:`sim2real.stacks.loops.rl_sar_motion`; the
+  TorchScript ``policy.pt`` of the folder, its ``rl_kp``/``rl_kd``, ``action_scale`` and
+  ``default_dof_pos``), on our robot's
   MJCF with torque actuators (``robot.plant_model("torque")``, the plant of
   :func:`bench.push_loops.unitree_loop`): the IMU quaternion and gyro and the joints read from
   the true MuJoCo state, ``tau = kp (target - q) - kd dq`` at every physics step; no estimator,
@@ -33,7 +34,6 @@ import numpy as np
 from bench.push_loops import (
     STOP_RAISED,
     Run,
-    _Walk,
     bare_plant,
     count_running_tick,
     finish_run,
@@ -41,11 +41,12 @@ from bench.push_loops import (
     true_fall,
     true_upright,
 )
-from bench.rl_sar_motion import RlSarMotion, rl_sar_params
-from bench.rl_sar_tracking import load_policy, observation
 from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.eval.world.pushes import DomainPushes
+from sim2real.stacks.loops.rl_sar_motion import RlSarMotion, rl_sar_params
+from sim2real.stacks.loops.rl_sar_tracking import load_policy, observation
+from sim2real.stacks.loops.walk import Walk
 
 #: s the own loop holds the home pose before the clip (rl_sar's GetUp before its dance state; our
 #: choice of length: the robot at rest on its feet)
@@ -98,7 +99,7 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
     ticks = round(motion.duration / period)
     if seconds is not None:
         ticks = min(ticks, round(seconds / period))
-    walk, run = _Walk(), Run()
+    walk, run = Walk(), Run()
     schedule = DomainPushes([seed], pushes, period) if pushes else None
     bare = SimDisturbances(robot, [m], [d])
     for k in range(ticks):

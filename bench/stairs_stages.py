@@ -1,5 +1,6 @@
-"""``deploy-run --terrain`` runs judged as :mod:`bench.himloco_terrain_loop` judges its own loop
-(the true base 4 m along x, the tile's rim, before a fall or a stop), with the runtime's stages
+"""``deploy-run --terrain`` runs judged as rl_sar's own loop
+(:mod:`sim2real.stacks.loops.himloco_terrain_loop`) judges itself (the true base 4 m along x, the tile's rim,
+before a fall or a stop), with the runtime's stages
 switched off one at a time: where does our runtime stall on a tile the own loop crosses?
 
 ``python -m bench.stairs_stages --robot ROBOT_DIR --policy POLICY.onnx --tile stairs_up:0.13
@@ -9,7 +10,7 @@ switched off one at a time: where does our runtime stall on a tile the own loop 
 Each run is deploy-run's (``--backend sim --terrain TILE --seed S``: its rig, backend and exit
 code, built with its own functions), ``--seconds`` walked from the command (``--whole``: its
 ``--duration``, the start included); ``--stand-max S``: each seed stands U(0, S) s first, as
-:func:`bench.himloco_terrain_loop.start_delay` draws it (docs/soak.md, "The first-step
+:func:`sim2real.stacks.loops.himloco_terrain_loop.start_delay` draws it (docs/soak.md, "The first-step
 stall"). ``--off`` (evaluation switches, no deploy-run option): ``guard`` (the filter and the
 motion check pass everything), ``pd_barrier`` (its changes undone), ``hard_stop`` (counted,
 never stopping: :meth:`SafetyGuard.set_stopping`), ``truth_obs`` (the policy observes the
@@ -35,7 +36,7 @@ import numpy as np
 from sim2real.deploy.core.attitude import quaternion_to_matrix
 from sim2real.deploy.core.modes import RUNNING
 
-CROSSED_X = 4.0  # m, bench.himloco_terrain_loop's
+CROSSED_X = 4.0  # m, sim2real.stacks.loops.himloco_terrain_loop's
 STAGES = (
     "guard", "pd_barrier", "hard_stop", "truth_obs", "noisy_truth_obs", "fall", "runtime", "ramp",
     "heavy_calves",
@@ -84,7 +85,9 @@ def _switch_off(rig, stages: set[str], seed: int = 0) -> None:
         plant = rig.backend
         sensors = rig.robot.config.sensors
         sigma = (0.0, 0.0, 0.0, 0.0)
-        if "noisy_truth_obs" in stages:  # the white noise bench.himloco_terrain_loop draws
+        if (
+            "noisy_truth_obs" in stages
+        ):  # the white noise sim2real.stacks.loops.himloco_terrain_loop draws
             sigma = (sensors.encoder_noise_sigma, sensors.velocity_noise_sigma or 0.0,
                      sensors.imu.gyro_noise_sigma, sensors.imu.orientation_sigma or 0.0)  # fmt: skip
         noise = np.random.default_rng([seed, 7])
@@ -274,7 +277,8 @@ class _Spec:
 def start_delay(seed: int, stand_max: float) -> float:
     """s the robot stands (no command) before the command is given: U(0, ``stand_max``) drawn
     from ``seed`` (``numpy.random.default_rng([seed, 3])``, as
-    :func:`bench.himloco_terrain_loop.start_delay` draws it for the own loop); 0 without one."""
+    :func:`sim2real.stacks.loops.himloco_terrain_loop.start_delay` draws it for the own loop); 0
+    without one."""
     if stand_max <= 0.0:
         return 0.0
     return float(np.random.default_rng([seed, 3]).uniform(0.0, stand_max))

@@ -17,7 +17,7 @@ import pytest
 
 from sim2real.deploy.spec.foreign.contract import MotionSource
 from sim2real.deploy.tasks.motion.clip import ClipError
-from sim2real.deploy.tasks.motion.formats import CLIP_FORMATS, recognise
+from sim2real.deploy.tasks.motion.formats import clip_formats, recognise
 from sim2real.deploy.tasks.motion.npz_beyondmimic import BEYONDMIMIC_G1_JOINTS
 from sim2real.deploy.tasks.motion.source import motion_for
 from tests.test_motion_npz import SDK, csv_to_npz, synthetic_rows, write_holosoma
@@ -113,7 +113,7 @@ def test_a_file_no_format_recognises_is_refused_naming_the_formats_known(tmp_pat
     csv = write_csv(synthetic_rows(frames=10), tmp_path / "dance.csv")
     message = one_line(lambda: motion_for(tracker(csv), g1(), 1, path))
     assert message.startswith(f"{path}: format: no clip format recognises it")
-    assert all(f"{f} (" in message for f in CLIP_FORMATS)
+    assert all(f"{f} (" in message for f in clip_formats())
 
 
 def test_a_rate_flag_for_a_file_that_states_its_rate_is_refused(tmp_path):

@@ -16,7 +16,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("deploy", "eval", "robots", "policies")
+PACKAGES = ("deploy", "eval", "robots", "policies", "stacks")
 
 
 def _contracts() -> dict[str, dict]:
@@ -30,12 +30,12 @@ def _floor_rooms() -> set[str]:
 
 def room_of(module: str) -> str:
     """The room of a dotted module name, named as the floors name it (inside ``sim2real``):
-    ``deploy.<room>`` and ``eval.<room>`` (a subpackage or a top-level module), ``robots`` and
-    ``policies`` whole (their floor is one room each)."""
+    ``deploy.<room>`` and ``eval.<room>`` (a subpackage or a top-level module), ``robots``,
+    ``policies`` and ``stacks`` whole (their floor is one room each)."""
     parts = module.split(".")
     if parts[0] == "sim2real":
         parts = parts[1:] or ["sim2real"]
-    if parts[0] in ("robots", "policies") or len(parts) == 1:
+    if parts[0] in ("robots", "policies", "stacks") or len(parts) == 1:
         return parts[0]
     return ".".join(parts[:2])
 
@@ -59,8 +59,8 @@ def test_every_room_of_deploy_and_eval_stands_on_a_floor():
         if name.count(".") > 1 and not name.endswith("__main__")
     }
     assert rooms - floors == set(), "rooms missing from [tool.importlinter] floors in pyproject"
-    assert {"robots", "policies"} <= floors
-    assert floors - rooms - {"robots", "policies"} == set(), "floors naming no room"
+    assert {"robots", "policies", "stacks"} <= floors
+    assert floors - rooms - {"robots", "policies", "stacks"} == set(), "floors naming no room"
 
 
 def test_room_of_names_the_room():
@@ -68,6 +68,7 @@ def test_room_of_names_the_room():
     assert room_of("sim2real.deploy.robot_kind") == "deploy.robot_kind"
     assert room_of("sim2real.eval.world.pushes") == "eval.world"
     assert room_of("sim2real.robots.importer.mjcf") == "robots"
+    assert room_of("sim2real.stacks.loops.walk") == "stacks"
 
 
 def test_no_private_name_is_imported_from_another_room():

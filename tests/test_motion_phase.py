@@ -3,7 +3,7 @@ owns (sim2real/deploy/core/phase_clock.py), rl_sar's ``RoboMimic_Deploy/phase`` 
 them, and the sizes ``policy-export --inspect`` reads from a TorchScript module that wraps its
 network. CI runs them on files written the way rl_sar writes its RoboMimic folder
 (tests/robomimic_files.py); the last tests play rl_sar's own charleston on unitree_mujoco's G1
-against a bare loop of RoboMimic_Deploy's runtime (bench/robomimic_dance.py), through the
+against a bare loop of RoboMimic_Deploy's runtime (sim2real/stacks/loops/robomimic_dance.py), through the
 ``stacks`` fixture."""
 
 from __future__ import annotations
@@ -263,8 +263,8 @@ def test_charleston_plays_its_motion_within_10_percent_of_robomimics_own_loop(ch
     config.yaml, physics 0.002 s x 10 as the import's)."""
     import torch
 
-    from bench import robomimic_dance
     from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.stacks.loops import robomimic_dance
 
     root, robot, policy, source, _ = charleston
     report = tmp_path / "r.json"

@@ -16,7 +16,6 @@ import pytest
 import torch
 from onnx import TensorProto, helper, numpy_helper
 
-from bench import rl_sar_robot
 from bench.push_reference import main
 from sim2real.deploy.cli.robot_import import main as robot_import
 from sim2real.deploy.core.state import RobotState
@@ -24,6 +23,7 @@ from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.rig.own_loop import OwnLoop
 from sim2real.deploy.spec.policy_spec import PolicySpec
 from sim2real.robots import load_robot
+from sim2real.stacks.loops import rl_sar_robot
 from tests.go2_layout import ACTUATORS, write_go2
 from tests.runtime_fixtures import linear_onnx
 
@@ -272,7 +272,7 @@ def test_rl_sars_b2_runs_on_b2_xml_and_lite3_without_an_mjcf_is_refused(stacks, 
     rl_sar's B2 folder (robot_lab) matches unitree_mujoco's b2.xml and stands up and walks 3 s
     at 0.5 m/s in its own loop (its meshes absent: dropped); Lite3's HIMLoco folder has no unitree_mujoco
     MJCF and is refused naming the file."""
-    from bench.himloco_terrain_loop import run
+    from sim2real.stacks.loops.himloco_terrain_loop import run
 
     names = ["policy/b2/base.yaml", "policy/b2/robot_lab/config.yaml"]
     names += ["policy/b2/robot_lab/policy.pt", "policy/lite3/base.yaml"]
@@ -315,13 +315,13 @@ def test_the_velocity_feedback_policy_sees_its_command_corrected_by_the_base_vel
 
 
 def test_the_bare_loop_starts_as_our_plant_spawns_or_with_rl_sars_get_up(quad):
-    """``bench.himloco_terrain_loop``'s ``start``: ``standing`` hands the policy the robot as
+    """``sim2real.stacks.loops.himloco_terrain_loop``'s ``start``: ``standing`` hands the policy the robot as
     deploy-run's plant spawns it (the default pose at rest, the base level at the import's
     standing height above the tile's ground, at its centre); rl_sar's ``get-up`` (its home key
     dropped, 1 s of its fixed gains to the default pose) hands it over elsewhere (on the Go2
     2.6 cm forward and 1.5 cm lower, docs/soak.md: what decides the first-step stall). An
     unknown start is refused naming it."""
-    from bench.himloco_terrain_loop import run
+    from sim2real.stacks.loops.himloco_terrain_loop import run
 
     root, robot_dir, _ = quad
     height = load_robot(robot_dir).config.base.standing_height
@@ -333,3 +333,17 @@ def test_the_bare_loop_starts_as_our_plant_spawns_or_with_rl_sars_get_up(quad):
     assert abs(got_up[2] - height) > 0.005
     with pytest.raises(ValueError, match="start 'lying'"):
         run(*args, start="lying", **kw)
+
+
+def test_the_own_loop_judges_its_robot_by_its_own_standing_height(quad):
+    """rl_sar's loop of a robot judges its falls and places its standing start by that robot's
+    standing height, never the Go2's: the import given, else the shipped robot of its name, else
+    its MJCF's ``home`` key."""
+    from sim2real.stacks.loops.himloco_terrain_loop import standing_height
+
+    root, robot_dir, _ = quad
+    ours = load_robot(robot_dir).config.base.standing_height
+    assert standing_height("quad/walk", motors=robot_dir) == ours
+    assert standing_height("quad/walk", unitree_mujoco=root / "unitree_mujoco") == 0.27
+    go2 = load_robot("go2").config.base.standing_height
+    assert standing_height("go2/himloco") == go2 != 0.27

@@ -1,4 +1,4 @@
-"""The bare rl_sar tracking loop (bench.rl_sar_tracking), the reference deploy-run is held to on a
+"""The bare rl_sar tracking loop (sim2real.stacks.loops.rl_sar_tracking), the reference deploy-run is held to on a
 dance: its observation on the first control tick and its clip clock, against hand computations
 from rl_sar's own dance_102 folder (fan-ziqi/rl_sar e384912, read from its checkout under ``SIM2REAL_STACKS``; skipped
 without it). The anchor is computed here with scipy rotation matrices, not the loop's quaternions.
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bench.rl_sar_motion import RlSarMotion, rl_sar_params
-from bench.rl_sar_tracking import observation
+from sim2real.stacks.loops.rl_sar_motion import RlSarMotion, rl_sar_params
+from sim2real.stacks.loops.rl_sar_tracking import observation
 
 DANCE = "policy/g1/whole_body_tracking/dance_102"
 
@@ -91,7 +91,7 @@ def test_the_clip_clock_is_rl_sars_one_frame_per_tick_ending_at_frames_times_dt(
 def test_dance_102_plays_whole_in_the_bare_loop_on_unitree_mujocos_g1(stacks, dance, tmp_path):
     """The reference itself: rl_sar's dance_102 whole on unitree_mujoco's g1_29dof.xml, no fall."""
     pytest.importorskip("torch")
-    from bench.rl_sar_tracking import run
+    from sim2real.stacks.loops.rl_sar_tracking import run
 
     stacks.copy("rl_sar", [f"{DANCE}/policy.pt"], dance.parents[3])
     stacks.copy("unitree_mujoco", ["unitree_robots/g1"], tmp_path)

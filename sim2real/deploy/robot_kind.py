@@ -134,8 +134,9 @@ class RobotKind:
 
 
 #: The registered robot kinds (:class:`sim2real.deploy.core.registry.Registry`); the built-in
-#: ones register when :mod:`sim2real.deploy.kinds` is imported.
-KIND_REGISTRY: Registry[RobotKind] = Registry("robot kind")
+#: ones register when :mod:`sim2real.deploy.kinds` is imported, a kind kept outside the tree when
+#: its module, an entry point of the group ``sim2real.kinds``, is imported by the registry.
+KIND_REGISTRY: Registry[RobotKind] = Registry("robot kind", group="sim2real.kinds")
 
 
 def register_kind(kind: RobotKind) -> RobotKind:

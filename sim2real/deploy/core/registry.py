@@ -7,7 +7,9 @@ the faces of a robot kind in the rooms above it (:class:`Faces`, keyed by the ki
 An entry is registered once under its name; the built-in entries register when the modules named
 at the registry's creation are imported (light modules: a registry lists its entries without
 importing MuJoCo or a vendor SDK). Code an entry runs is named ``"module:attribute"`` and imported
-only when used (:func:`load_target`).
+only when used (:func:`load_target`). An entry kept outside the tree registers through a package
+entry point of the registry's ``group`` (``sim2real.kinds``, ``sim2real.stacks``): its module is
+imported with the built-in ones and registers itself as a built-in module does.
 """
 
 from __future__ import annotations
@@ -42,12 +44,16 @@ class Registry(Generic[T]):
     Args:
         what: The entries' kind, for messages (``"backend"``, ``"engine"``, ...).
         builtin: Modules whose import registers the built-in entries.
+        group: The package entry-point group whose entries' modules are imported with the
+            built-in ones (once each; :meth:`load_plugins`); None: no plug-ins.
     """
 
-    def __init__(self, what: str, builtin: tuple[str, ...] = ()):
+    def __init__(self, what: str, builtin: tuple[str, ...] = (), group: str | None = None):
         self.what = what
         self.builtin = builtin
+        self.group = group
         self._entries: dict[str, T] = {}
+        self._plugins: set[str] | None = None
 
     def register(self, name: str, entry: T) -> T:
         """Register ``entry`` under ``name``; returns it.
@@ -64,7 +70,39 @@ class Registry(Generic[T]):
         """The entries by name, in registration order (the built-in modules imported first)."""
         for module in self.builtin:
             importlib.import_module(module)
+        if self._plugins is None:
+            self.load_plugins()
         return dict(self._entries)
+
+    def load_plugins(self) -> tuple[str, ...]:
+        """Import the module of every entry point of :attr:`group` not imported yet (the
+        distributions on ``sys.path`` now): each registers its entries as it is imported.
+
+        Returns:
+            The entry points' names loaded by this call.
+
+        Raises:
+            ImportError: an entry point names a module that cannot be imported (raised as
+                ``ImportError`` naming the entry point and the group).
+        """
+        from importlib.metadata import entry_points
+
+        done = self._plugins if self._plugins is not None else set()
+        self._plugins = done
+        loaded = []
+        for point in entry_points(group=self.group) if self.group else ():
+            key = f"{point.name}={point.value}"
+            if key in done:
+                continue
+            done.add(key)
+            try:
+                point.load()
+            except (ImportError, AttributeError) as exc:
+                raise ImportError(
+                    f"entry point '{point.name} = {point.value}' of group '{self.group}': {exc}"
+                ) from exc
+            loaded.append(point.name)
+        return tuple(loaded)
 
     def names(self) -> tuple[str, ...]:
         """The registered names, in registration order."""

@@ -45,13 +45,13 @@ def _foreign(path: Path, model, robot) -> dict[str, Any] | None:
     from sim2real.deploy.spec.foreign.report import summary
 
     facts = foreign.OnnxFacts.of(path, model)
-    fmt = foreign.detect_format(facts)
-    if fmt is None:
+    stack = foreign.detect_stack(facts)
+    if stack is None:
         return None
     try:
-        return summary(fmt.read(facts), robot)
+        return summary(foreign.read_contract(facts), robot)
     except foreign.ForeignFormatError as exc:
-        return {"format": fmt.NAME, "source": "the file", "error": str(exc)}
+        return {"format": stack.name, "source": "the file", "error": str(exc)}
 
 
 def _folder_foreign(path: Path, robot, result: dict[str, Any]) -> dict[str, Any] | None:

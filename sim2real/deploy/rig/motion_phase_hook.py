@@ -3,11 +3,11 @@ motion it played and how closely the joints followed the targets it set.
 
 A phase-clocked dance (rl_sar's RoboMimic charleston) reads no clip, so there is no reference to
 judge its joints against; what a run of it can be compared on is what its own runtime's loop
-gives too (``bench.robomimic_dance``): the share of the motion's length ``T`` played before a stop,
-the stops during it, and the joints' error against the policy's targets (rad RMS: each RUNNING
-tick's true joint angles, after the tick's physics, against the target that tick commanded,
-while the motion clock is below ``T``; the plant's truth in simulation, the estimate otherwise).
-The motion clock is the runtime's
+gives too (``sim2real.stacks.loops.robomimic_dance``): the share of the motion's length ``T``
+played before a stop, the stops during it, and the joints' error against the policy's targets (rad
+RMS: each RUNNING tick's true joint angles, after the tick's physics, against the target that tick
+commanded, while the motion clock is below ``T``; the plant's truth in simulation, the estimate
+otherwise). The motion clock is the runtime's
 (:class:`~sim2real.deploy.core.phase_clock.MotionPhaseClock`, its floating-base tick's).
 """
 

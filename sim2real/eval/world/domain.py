@@ -9,6 +9,9 @@ Where it comes from:
   :func:`sim2real.eval.world.legged_gym_domain.legged_gym_domain`: every value with the file and
   line it came from, every key the soak does not model named in one line
   (:func:`domain_account` gives those lines).
+- **another stack's own record** (holosoma's ``experiment_config``, an Isaac Lab or mjlab run
+  folder's ``params/env.yaml``): the ``domain`` face of the stack that recognises the policy
+  (:mod:`sim2real.stacks`), read by :func:`training_domain` and :func:`domain_toml`.
 - **a ranges file** (TOML) written by hand, or by :func:`domain_toml`.
 - **our own recipes**: they train on the soak's own ranges (:func:`sim2real.eval.world.session_ranges.
   session_ranges`), which is what ``soak-test`` runs without a domain.
@@ -44,40 +47,46 @@ def domain_account(text: str) -> list[str]:
 
 
 def domain_toml(path: str | Path) -> str:
-    """The ranges file (TOML text) of a training-domain source: a legged_gym config (``.py``)
-    through :func:`legged_gym_domain`, an Isaac Lab or mjlab ``env.yaml`` (``.yaml``) through
-    :func:`sim2real.eval.world.env_yaml_domain.env_yaml_domain`, a ranges file (``.toml``) as it
-    is.
+    """The ranges file (TOML text) of a training-domain source: a config file of a stack whose
+    ``domain`` face reads its suffix (:mod:`sim2real.stacks`: a legged_gym config ``.py``, an
+    Isaac Lab or mjlab ``env.yaml``), or a ranges file (``.toml``) as it is.
 
     Raises:
-        DomainError: another suffix, or a source that cannot be read or has a randomization
-            the soak cannot run (named).
+        DomainError: a suffix no stack reads, or a source that cannot be read or has a
+            randomization the soak cannot run (named).
     """
     path = Path(path)
-    if path.suffix == ".py":
-        return legged_gym_domain(path)
-    if path.suffix in (".yaml", ".yml"):
-        from sim2real.eval.world.env_yaml_domain import env_yaml_domain
-
-        return env_yaml_domain(path)
     if path.suffix == ".toml":
         try:
             return path.read_text(encoding="utf-8")
         except OSError as exc:
             raise DomainError(f"{path}: cannot read the ranges file ({exc.strerror})") from None
-    raise DomainError(
-        f"{path}: a training domain is a legged_gym config (.py), an Isaac Lab or mjlab env.yaml "
-        "(.yaml) or a ranges file (.toml)"
-    )
+    readers = _config_readers()
+    for reader in readers:
+        if path.suffix in reader.suffixes:
+            return reader.read(path)
+    known = ", ".join(r.what for r in readers)
+    raise DomainError(f"{path}: a training domain is {known} or a ranges file (.toml)")
+
+
+def _config_readers() -> list:
+    """The stacks' domain faces that read a config file, each once (stacks by rank)."""
+    from sim2real.deploy.core.stacks import with_face
+
+    out = []
+    for _, reader in with_face("domain"):
+        if reader.read is not None and reader.suffixes and reader not in out:
+            out.append(reader)
+    return out
 
 
 def training_domain(policy: str | Path) -> str | None:
     """The training domain of an ONNX policy: the one it carries (metadata ``training_domain``,
-    the text of a ranges file), else, for a file without our spec, holosoma's
-    ``experiment_config`` (:func:`sim2real.eval.world.holosoma_domain.holosoma_domain`) or its
-    Isaac Lab or mjlab run folder's ``params/env.yaml`` beside it (where
-    :mod:`sim2real.deploy.spec.foreign.isaaclab` looks for it; :func:`domain_toml`) when it has
-    ``events``, else None.
+    the text of a ranges file), else, for a file without our spec, the one its stack records:
+    the stack that recognises the file (the contract's ``detect``, :mod:`sim2real.stacks`) and
+    its ``domain`` face (holosoma's ``experiment_config``; Isaac Lab's, mjlab's and Unitree's
+    deploy.yaml's run folder's ``params/env.yaml`` when it has ``events``); None when no stack
+    recognises the file or its stack records none.
 
     Raises:
         DomainError: the file cannot be read as ONNX, or the domain it records cannot be read
@@ -86,7 +95,7 @@ def training_domain(policy: str | Path) -> str | None:
     """
     import onnx
 
-    from sim2real.deploy.spec.foreign.isaaclab import ENV_YAML
+    from sim2real.deploy.spec.foreign.registry import OnnxFacts, detect_stack
 
     try:
         model = onnx.load(str(policy), load_external_data=False)
@@ -97,35 +106,11 @@ def training_domain(policy: str | Path) -> str | None:
         return metadata[METADATA_KEY]
     if "policy_spec" in metadata:
         return None
-    if "experiment_config" in metadata:  # holosoma's
-        return _holosoma(policy, metadata)
-    folder = Path(policy).resolve().parent
-    env = next(((folder / p).resolve() for p in ENV_YAML if (folder / p).is_file()), None)
-    if env is None:
+    stack = detect_stack(OnnxFacts.of(policy, model))
+    reader = None if stack is None else stack.face("domain")
+    if reader is None or reader.of_policy is None:
         return None
-    from sim2real.eval.world.env_yaml_domain import env_yaml_domain, load_env_yaml
-
-    # a run folder's env.yaml without events (none dumped) says nothing of the domain
-    return env_yaml_domain(env) if isinstance(load_env_yaml(env).get("events"), dict) else None
-
-
-def _holosoma(policy, metadata: dict) -> str:
-    """:func:`~sim2real.eval.world.holosoma_domain.holosoma_domain` of a holosoma file's
-    metadata.
-
-    Raises:
-        DomainError: its JSON does not parse, or the domain is refused (named).
-    """
-    import json
-
-    from sim2real.eval.world.holosoma_domain import holosoma_domain
-
-    try:
-        config = json.loads(metadata["experiment_config"])
-        ranges = json.loads(metadata.get(COMMAND_RANGES_KEY) or "null")
-    except json.JSONDecodeError as exc:
-        raise DomainError(f"{policy}: metadata is not JSON ({exc})") from None
-    return holosoma_domain(config, ranges if isinstance(ranges, dict) else None, str(policy))
+    return reader.of_policy(Path(policy), metadata)
 
 
 #: The metadata key of a velocity command's training ranges: holosoma's (``lin_vel_x``,

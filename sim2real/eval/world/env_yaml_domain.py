@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from sim2real.deploy.core.stacks import DomainReader
 from sim2real.eval.world.env_yaml_events import EVENTS, Reading, range_text, zero_fraction
 from sim2real.eval.world.legged_gym_domain import DomainError
 from sim2real.eval.world.legged_gym_groups import G
@@ -196,3 +197,26 @@ def env_yaml_domain(path: str | Path) -> str:
             "training domain as a ranges file (see sim2real/eval/world/example_ranges.toml)"
         )
     return r.text(path)
+
+
+def run_folder_domain(policy: str | Path, metadata: dict) -> str | None:
+    """The training domain of a policy file's run folder: the first ``env.yaml`` where
+    :data:`sim2real.deploy.spec.foreign.isaaclab.ENV_YAML` looks for it beside ``policy``, read
+    by :func:`env_yaml_domain` when it has ``events`` (a run folder's env.yaml without events,
+    none dumped, says nothing of the domain); None: no env.yaml there, or none with events.
+    ``metadata`` is not read (Isaac Lab's, mjlab's and Unitree's deploy.yaml's run folders keep
+    the domain beside the file)."""
+    from sim2real.deploy.spec.foreign.isaaclab import ENV_YAML
+
+    folder = Path(policy).resolve().parent
+    env = next(((folder / p).resolve() for p in ENV_YAML if (folder / p).is_file()), None)
+    if env is None:
+        return None
+    return env_yaml_domain(env) if isinstance(load_env_yaml(env).get("events"), dict) else None
+
+
+#: The training-domain face of the stacks whose run folder holds an ``env.yaml`` (Isaac Lab,
+#: mjlab, Unitree's deploy.yaml of their policies; :mod:`sim2real.stacks`).
+DOMAIN = DomainReader(
+    "an Isaac Lab or mjlab env.yaml (.yaml)", (".yaml", ".yml"), env_yaml_domain, run_folder_domain
+)

@@ -22,6 +22,7 @@ import json
 import math
 from collections.abc import Callable
 
+from sim2real.deploy.core.stacks import DomainReader
 from sim2real.eval.world.env_yaml_events import Reading, half_range, range_text, zero_fraction
 from sim2real.eval.world.legged_gym_domain import DomainError
 from sim2real.eval.world.legged_gym_groups import G
@@ -198,3 +199,29 @@ def holosoma_domain(config: dict, command_ranges: dict | None, source: str) -> s
         raise DomainError(f"{source}: " + "; ".join(r.refused) + "; nothing is dropped silently: "
                           "write the training domain as a ranges file")  # fmt: skip
     return r.text(source)
+
+
+def policy_domain(policy, metadata: dict) -> str | None:
+    """:func:`holosoma_domain` of a holosoma file's metadata (``experiment_config``, its
+    ``command_ranges``); None when it has no ``experiment_config``.
+
+    Raises:
+        DomainError: its JSON does not parse, or the domain is refused (named).
+    """
+    from sim2real.eval.world.domain import COMMAND_RANGES_KEY
+
+    if "experiment_config" not in metadata:
+        return None
+    try:
+        config = json.loads(metadata["experiment_config"])
+        ranges = json.loads(metadata.get(COMMAND_RANGES_KEY) or "null")
+    except json.JSONDecodeError as exc:
+        raise DomainError(f"{policy}: metadata is not JSON ({exc})") from None
+    return holosoma_domain(config, ranges if isinstance(ranges, dict) else None, str(policy))
+
+
+#: holosoma's training-domain face (the ``holosoma`` stack's, :mod:`sim2real.stacks`): the
+#: ``experiment_config`` its exports carry; no config file of its own is read.
+DOMAIN = DomainReader(
+    "holosoma's experiment_config (in its ONNX metadata)", of_policy=policy_domain
+)

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from sim2real.deploy.core.stacks import DomainReader
 from sim2real.eval.world.legged_gym_groups import GROUPS, Context
 from sim2real.eval.world.legged_gym_lines import domain_lines, terrain_table
 from sim2real.eval.world.legged_gym_tree import Setting, TreeError, resolve_config
@@ -167,3 +168,8 @@ def legged_gym_domain(path: str | Path, config_class: str | None = None) -> str:
     if refused:
         raise DomainError(f"{path}: " + "; ".join(refused))
     return text
+
+
+#: legged_gym's training-domain face (the ``legged_gym`` stack's, :mod:`sim2real.stacks`): a task's
+#: config class (``.py``); its exports record none.
+DOMAIN = DomainReader("a legged_gym config (.py)", (".py",), legged_gym_domain)

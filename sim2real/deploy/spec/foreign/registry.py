@@ -1,28 +1,24 @@
 """The training stacks whose policies carry their own contract, and how a file is matched to one.
 
-:data:`FORMATS` lists them in the order they are tried (the first whose ``detect`` accepts a file
-reads it); :class:`OnnxFacts` is what a format looks at (the file, its metadata, the graph's
-inputs and outputs). :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` (a file without our
-``policy_spec`` and no ``--spec``) and ``policy-export --inspect`` both go through
-:func:`read_contract`. A new format is one module with ``NAME``, ``detect(facts)`` and
-``read(facts)`` and one more entry here.
+The stacks (:mod:`sim2real.stacks`, :func:`sim2real.deploy.core.stacks.stacks`) are tried by rank
+(metadata formats first; of those that read a file beside a bare graph, Unitree's deploy.yaml,
+which its own deployment reads, and rl_sar's config.yaml before Isaac Lab's env.yaml): the first
+whose ``detect`` face accepts a file reads it with its ``contract`` face. :class:`OnnxFacts` is
+what they look at (the file, its metadata, the graph's inputs and outputs).
+:class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` (a file without our ``policy_spec`` and no
+``--spec``) and ``policy-export --inspect`` both go through :func:`read_contract`. A new format is
+one stack module (its ``detect`` and ``contract`` faces), in the tree or through an entry point.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from types import ModuleType
 
 import onnx
 
-from sim2real.deploy.spec.foreign import holosoma, isaaclab, mjlab, rl_sar, unitree_deploy
+from sim2real.deploy.core.stacks import Stack, with_face
 from sim2real.deploy.spec.foreign.contract import ForeignContract, ForeignFormatError
-
-#: The formats, in the order they are tried (metadata formats first; of the two that read a file
-#: beside a bare graph, Unitree's deploy.yaml, which its own deployment reads, and rl_sar's
-#: config.yaml before Isaac Lab's env.yaml).
-FORMATS: tuple[ModuleType, ...] = (mjlab, holosoma, unitree_deploy, rl_sar, isaaclab)
 
 
 def _dims(vi: onnx.ValueInfoProto) -> list[int | str | None]:
@@ -104,9 +100,9 @@ class OnnxFacts:
         return fail
 
 
-def detect_format(facts: OnnxFacts) -> ModuleType | None:
-    """The first format of :data:`FORMATS` that recognises the file, or None."""
-    return next((f for f in FORMATS if f.detect(facts)), None)
+def detect_stack(facts: OnnxFacts) -> Stack | None:
+    """The first stack, by rank, whose ``detect`` face recognises the file, or None."""
+    return next((stack for stack, detect in with_face("detect") if detect(facts)), None)
 
 
 def read_contract(facts: OnnxFacts) -> ForeignContract | None:
@@ -116,8 +112,13 @@ def read_contract(facts: OnnxFacts) -> ForeignContract | None:
         ForeignFormatError: a recognised format whose contract cannot be read (naming the file,
             the format and the key).
     """
-    fmt = detect_format(facts)
-    return None if fmt is None else fmt.read(facts)
+    stack = detect_stack(facts)
+    if stack is None:
+        return None
+    read = stack.face("contract")
+    if read is None:  # a stack that recognises files must read them: tests/test_stack_seams.py
+        raise ForeignFormatError(f"{facts.path}: {stack.name} policy: the stack reads no contract")
+    return read(facts)
 
 
 def read_folder_contract(path: str | Path) -> ForeignContract | None:
@@ -137,5 +138,5 @@ def read_folder_contract(path: str | Path) -> ForeignContract | None:
 
 
 def known_formats() -> str:
-    """The formats' names, for messages: ``"mjlab, holosoma, isaaclab"``."""
-    return ", ".join(f.NAME for f in FORMATS)
+    """The names of the stacks that read a contract, for messages: ``"mjlab, holosoma, ..."``."""
+    return ", ".join(stack.name for stack, _ in with_face("contract"))

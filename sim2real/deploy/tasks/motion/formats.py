@@ -1,5 +1,6 @@
-"""The clip formats ``deploy-run --motion`` and the soak's clip play: a registry, each format by its
-name, how a file of it is recognised (its extension and the keys inside it) and its reader.
+"""The clip formats ``deploy-run --motion`` and the soak's clip play: each format by its name, how a
+file of it is recognised (its extension and the keys inside it) and its reader, registered by its
+stack (the ``clips`` face of :mod:`sim2real.stacks`; :func:`clip_formats`).
 
 - ``rl_sar_csv``, ``.csv``: the extension decides (rl_sar's and BeyondMimic's CSV: root xyz, root
   quaternion x y z w, joints; no header, no names: the contract's columns name them),
@@ -148,47 +149,57 @@ def _read_beyondmimic_onnx(request: ClipRequest) -> MotionClip:
     return read_beyondmimic_onnx_motion(request.path, _given_rate(request))
 
 
-#: The registry, by name (module docstring). :func:`register_clip_format` adds one.
-CLIP_FORMATS: dict[str, ClipFormat] = {}
-
-
-def register_clip_format(fmt: ClipFormat) -> None:
-    """Add ``fmt`` to :data:`CLIP_FORMATS`.
-
-    Raises:
-        ValueError: a format of that name is registered already.
-    """
-    if fmt.name in CLIP_FORMATS:
-        raise ValueError(f"clip format {fmt.name!r}: already registered")
-    CLIP_FORMATS[fmt.name] = fmt
-
-
-for _fmt in (
-    ClipFormat("rl_sar_csv", ".csv", (), "rl_sar, BeyondMimic", _read_csv),
+#: The stacks' clip formats (their ``clips`` face, :mod:`sim2real.stacks`): rl_sar's CSV (which
+#: BeyondMimic's CSV also is), holosoma's NPZ and WBT export, BeyondMimic's NPZ and ONNX export.
+RL_SAR_CLIPS = (ClipFormat("rl_sar_csv", ".csv", (), "rl_sar, BeyondMimic", _read_csv),)
+HOLOSOMA_CLIPS = (
     ClipFormat(
         "holosoma_npz", ".npz",
         ("fps", "joint_pos", "joint_vel", "body_pos_w", "body_quat_w", "joint_names", "body_names"),
         "holosoma convert_data_format_mj.py", _read_holosoma_npz,
     ),
     ClipFormat(
-        "beyondmimic_npz", ".npz", ("fps", "joint_pos", "joint_vel", "body_pos_w", "body_quat_w"),
-        "whole_body_tracking csv_to_npz.py", _read_beyondmimic_npz,
-    ),
-    ClipFormat(
         "holosoma_onnx", ".onnx", ("joint_pos", "joint_vel", "ref_pos_xyz", "ref_quat_xyzw"),
         "holosoma WBT export", _read_holosoma_onnx,
+    ),
+)  # fmt: skip
+BEYONDMIMIC_CLIPS = (
+    ClipFormat(
+        "beyondmimic_npz", ".npz", ("fps", "joint_pos", "joint_vel", "body_pos_w", "body_quat_w"),
+        "whole_body_tracking csv_to_npz.py", _read_beyondmimic_npz,
     ),
     ClipFormat(
         "beyondmimic_onnx", ".onnx", ("joint_pos", "joint_vel", "body_pos_w", "body_quat_w"),
         "whole_body_tracking exporter", _read_beyondmimic_onnx,
     ),
-):  # fmt: skip
-    register_clip_format(_fmt)
+)  # fmt: skip
+
+
+def clip_formats() -> dict[str, ClipFormat]:
+    """The clip formats by name: every registered stack's ``clips`` face
+    (:func:`sim2real.deploy.core.stacks.with_face`), the stacks by rank.
+
+    Raises:
+        ValueError: two stacks register a format of one name (naming both).
+    """
+    from sim2real.deploy.core.stacks import with_face
+
+    out: dict[str, ClipFormat] = {}
+    owner: dict[str, str] = {}
+    for stack, formats in with_face("clips"):
+        for fmt in formats:
+            if fmt.name in out:
+                raise ValueError(
+                    f"clip format '{fmt.name}': registered by stacks '{owner[fmt.name]}' and "
+                    f"'{stack.name}'"
+                )
+            out[fmt.name], owner[fmt.name] = fmt, stack.name
+    return out
 
 
 def known_formats() -> str:
     """``"rl_sar_csv (.csv), holosoma_npz (.npz), ..."``: the registry, for messages."""
-    return ", ".join(f"{f.name} ({f.extension})" for f in CLIP_FORMATS.values())
+    return ", ".join(f"{f.name} ({f.extension})" for f in clip_formats().values())
 
 
 def _keys(path: Path, extension: str) -> set[str] | None:
@@ -217,7 +228,7 @@ def recognise(path) -> ClipFormat:
     if not path.is_file():
         raise ClipError(f"{path}: file: expected a clip file, got none there")
     extension = path.suffix.lower()
-    candidates = [f for f in CLIP_FORMATS.values() if f.extension == extension]
+    candidates = [f for f in clip_formats().values() if f.extension == extension]
     keys = _keys(path, extension) if candidates else None
     fitting = [f for f in candidates if keys is not None and set(f.keys) <= keys]
     if not fitting:

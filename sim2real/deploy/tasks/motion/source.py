@@ -46,7 +46,7 @@ def motion_for(
             whose sha256 the clip is checked against).
         robot: The robot. envs: Batch size.
         path: The clip in place of the contract's, any format of
-            :data:`~sim2real.deploy.tasks.motion.formats.CLIP_FORMATS` (rl_sar CSV, BeyondMimic
+            :func:`~sim2real.deploy.tasks.motion.formats.clip_formats` (rl_sar CSV, BeyondMimic
             or holosoma NPZ, a motion inside a holosoma or BeyondMimic ONNX).
         playback: ``stand`` (to the robot's home pose over ``stand_s`` s after the clip),
             ``once``, ``loop``, ``hold``.

@@ -1,6 +1,6 @@
 """A bare MuJoCo loop that plays an rl_sar ``whole_body_tracking`` folder as rl_sar's runtime does.
 
-``python -m bench.rl_sar_tracking FOLDER SCENE.xml [--start getup|clip] [--settle 1.0]
+``python -m sim2real.stacks.loops.rl_sar_tracking FOLDER SCENE.xml [--start getup|clip] [--settle 1.0]
 [--timestep 0.005] [--seconds S]``
 
 ``FOLDER`` is rl_sar's ``policy/g1/whole_body_tracking/<name>`` (``policy.pt`` TorchScript,
@@ -13,7 +13,7 @@ velocities, the clock, the slerp, the torso from the waist joints, the yaw align
 ``rl_sdk.cpp`` ``ComputeObservation``/``ComputeOutput``, ``rl_sim_mujoco.cpp``
 ``GetState``/``SetCommand``/``RunModel`` and ``fsm_g1.hpp`` (GetUp, then the dance state's
 ``Enter``: ``InitRL``, ``MotionLoader`` at ``1 / (dt * decimation)`` Hz, ``Reset`` with the IMU
-quaternion and the waist angles). The motion functions live in :mod:`bench.rl_sar_motion`.
+quaternion and the waist angles). The motion functions live in :mod:`.rl_sar_motion`.
 
 The start (``--start getup``, default): the robot at base.yaml's ``default_dof_pos`` dropped on
 the floor from unitree's 0.793 m, held by rl_sar's GetUp gains (base.yaml ``fixed_kp``/``fixed_kd``)
@@ -38,7 +38,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from bench.rl_sar_motion import (
+from sim2real.stacks.loops.rl_sar_motion import (
     RlSarMotion,
     quat_angle,
     quat_conj,
@@ -251,7 +251,9 @@ def run(
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.rl_sar_tracking", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m sim2real.stacks.loops.rl_sar_tracking", description=__doc__
+    )
     p.add_argument("folder", help="rl_sar's policy/g1/whole_body_tracking/<name>")
     p.add_argument("scene", help="unitree_mujoco's unitree_robots/g1/scene_29dof.xml")
     p.add_argument("--start", choices=("getup", "clip"), default="getup")

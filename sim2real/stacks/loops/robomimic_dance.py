@@ -1,6 +1,6 @@
 """A bare MuJoCo loop that plays RoboMimic_Deploy's phase-clocked dance as its own runtime does.
 
-``python -m bench.robomimic_dance MODEL.onnx DANCE.yaml SCENE.xml [--timestep 0.003]
+``python -m sim2real.stacks.loops.robomimic_dance MODEL.onnx DANCE.yaml SCENE.xml [--timestep 0.003]
 [--decimation 7] [--settle 0.2] [--save q.npz]``
 
 ``MODEL.onnx``, ``DANCE.yaml``: RoboMimic_Deploy's (ccrpRepo/RoboMimic_Deploy ffe3d40,
@@ -18,7 +18,7 @@ after the tick: the first reads 0, 0.02 s a tick whatever the period).
 
 Start: the default pose at unitree's 0.793 m, held by the dance's gains ``--settle`` s, then
 ``Dance.enter`` (RoboMimic walks there first). Runs ``T / 0.02`` ticks and prints the share played
-before a fall (as :mod:`bench.rl_sar_tracking`), the joints' error against the policy's targets
+before a fall (as :mod:`.rl_sar_tracking`), the joints' error against the policy's targets
 (rad RMS, 29 joints: each tick's angles after its physics against its target, as ``deploy-run``'s
 ``motion phase`` line), the base's travel and the ticks ending with two robot bodies in contact;
 ``--save`` writes each tick's joint angles, base position and phase.
@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 import yaml
 
-#: A fall (bench.rl_sar_tracking's): pelvis below this height, m, or tilted past FALL_TILT, rad.
+#: A fall (rl_sar_tracking's): pelvis below this height, m, or tilted past FALL_TILT, rad.
 FALL_HEIGHT = 0.35
 FALL_TILT = np.deg2rad(60.0)
 #: unitree_mujoco's G1 pelvis height at its home pose, m (g1_29dof.xml's pelvis body pos).
@@ -179,7 +179,9 @@ def run(
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.robomimic_dance", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m sim2real.stacks.loops.robomimic_dance", description=__doc__
+    )
     p.add_argument("model", help="RoboMimic_Deploy's policy/dance/model/dance_0605.onnx")
     p.add_argument("config", help="RoboMimic_Deploy's policy/dance/config/Dance.yaml")
     p.add_argument("scene", help="a G1 29-dof MJCF (unitree_mujoco's g1_29dof.xml)")

@@ -1,4 +1,4 @@
-"""rl_sar's motion side for the bare tracking loop (:mod:`bench.rl_sar_tracking`).
+"""rl_sar's motion side for the bare tracking loop (:mod:`.rl_sar_tracking`).
 
 Written from rl_sar e384912 (read, not copied): ``motion_loader/motion_loader.cpp`` and
 ``vector_math/vector_math.hpp`` (quaternions ``w x y z``), ``rl_sdk.cpp`` ``ReadYaml`` (a

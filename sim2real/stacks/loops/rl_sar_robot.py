@@ -1,4 +1,4 @@
-"""The robot of rl_sar's own MuJoCo loop (:mod:`bench.himloco_terrain_loop`): its policy folder,
+"""The robot of rl_sar's own MuJoCo loop (:mod:`.himloco_terrain_loop`): its policy folder,
 its MJCF, and whether they are the robot a run of ours is compared with.
 
 rl_sar (fan-ziqi/rl_sar e384912) names a policy by its config key ``<robot>/<policy>``

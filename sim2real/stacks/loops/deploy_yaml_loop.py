@@ -1,6 +1,6 @@
 """A bare MuJoCo loop that runs a policy folder the way Unitree's C++ deployment runs it.
 
-``python -m bench.deploy_yaml_loop V0 SCENE.xml [--command 0.5,0,0] [--seconds 20]
+``python -m sim2real.stacks.loops.deploy_yaml_loop V0 SCENE.xml [--command 0.5,0,0] [--seconds 20]
 [--timestep 0.002] [--armature A]``
 
 ``V0`` is a policy folder of unitree_rl_lab or unitree_rl_mjlab (``exported/policy.onnx``,
@@ -119,7 +119,9 @@ def run(folder: str, scene: str, command, seconds: float, timestep: float, armat
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m bench.deploy_yaml_loop", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m sim2real.stacks.loops.deploy_yaml_loop", description=__doc__
+    )
     p.add_argument("folder", help="policy folder: exported/policy.onnx, params/deploy.yaml")
     p.add_argument("scene", help="MJCF with the robot's joints in the motor slots' order")
     p.add_argument("--command", default="0.5,0,0", help="VX,VY,WZ (m/s, m/s, rad/s)")

@@ -3,7 +3,7 @@ MuJoCo loop that follows rl_sar's runtime: the own loop of ``deploy-run --terrai
 ``bench.push_reference --rl-sar``.
 
 rl_sar (fan-ziqi/rl_sar e384912) runs a policy folder, by default ``policy/go2/himloco``
-(``himloco.pt``), on unitree_mujoco's MJCF of its robot (``go2.xml``; :mod:`bench.rl_sar_robot`:
+(``himloco.pt``), on unitree_mujoco's MJCF of its robot (``go2.xml``; :mod:`.rl_sar_robot`:
 which files, and the refusal of a folder or MJCF that does not match) as its ``RL_Sim`` does
 (``src/rl_sar/src/rl_sim_mujoco.cpp``, ``library/core/rl_sdk``): the observation of
 ``config.yaml``'s terms in its order (commands x commands_scale, IMU gyro x ang_vel_scale,
@@ -22,11 +22,13 @@ standing height), the start a comparison with ``deploy-run`` gives both loops (d
 
 A crossing: the base reaches ``CROSSED_X`` m along x (the tile's rim, 4 m from its centre) without
 tipping past 1 rad or its height above the ground under it falling under 0.4 x the standing
-height (the project's fall judges; the robot import's, else the Go2's 0.32 m). ``--motors
+height (the project's fall judges; the robot's standing height, :func:`standing_height`: its
+import's, else the shipped robot's of its name, else its MJCF's ``home`` key's). ``--motors
 ROBOT_DIR``: an imported robot's motors (effort limits, torque-speed lines at 25 degC, as the
 plant applies them); ``--sensor-noise``: its white encoder, joint-speed and gyro noise. Usage::
 
-    python -m bench.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR stairs_up:0.10 slope_up:15deg
+    python -m sim2real.stacks.loops.himloco_terrain_loop RL_SAR_DIR UNITREE_MUJOCO_DIR \
+        stairs_up:0.10 slope_up:15deg
 """
 
 from __future__ import annotations
@@ -38,8 +40,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from bench import rl_sar_robot
 from sim2real.eval.world.terrain import apply_terrain, parse_terrain
+from sim2real.stacks.loops import rl_sar_robot
 
 CROSSED_X = 4.0
 #: m the robot is put above its key pose on a tile (a foot sphere started inside the height
@@ -47,9 +49,6 @@ CROSSED_X = 4.0
 DROP = 0.03
 #: rad, and share of the standing height: the project's fall judges
 FALL_TILT, FALL_SHARE = 1.0, 0.4
-#: m, the base's standing height of a run given no robot import: the Go2's (the CLI's default
-#: policy, HIMLoco's ``go2/himloco``)
-STANDING_HEIGHT = 0.32
 #: rl_sar's key of the CLI's default policy
 GO2_HIMLOCO = "go2/himloco"
 #: ``run``'s starts: rl_sar's get-up, or our plant's standing spawn
@@ -66,14 +65,14 @@ def _model(
     cfg: dict | None = None,
     robot=None,
 ):
-    """The MJCF of ``key``'s robot (:func:`bench.rl_sar_robot.mjcf`) with a floor, the tile
+    """The MJCF of ``key``'s robot (:func:`sim2real.stacks.loops.rl_sar_robot.mjcf`) with a floor, the tile
     laid in; its missing visual meshes dropped; checked against ``cfg`` (rl_sar's keys) and
-    ``robot`` (an import, :func:`bench.rl_sar_robot.check_model`). ``plant_of``: an imported
+    ``robot`` (an import, :func:`sim2real.stacks.loops.rl_sar_robot.check_model`). ``plant_of``: an imported
     robot folder whose MJCF's integrator and joints' armature, damping and friction loss replace
     the MJCF's (the plant's joint dynamics on the policy's own loop).
 
     Raises:
-        bench.rl_sar_robot.Mismatch: the MJCF missing, or not what the loop or ``robot`` needs.
+        rl_sar_robot.Mismatch: the MJCF missing, or not what the loop or ``robot`` needs.
     """
     xml = rl_sar_robot.mjcf(unitree_mujoco, key)
     spec = rl_sar_robot.load_spec(xml)
@@ -160,26 +159,26 @@ def run(
     place of rl_sar's ``dt`` (the PD law at every step, the policy at rl_sar's own rate).
     ``plant_of``: see :func:`_model`. ``guard_stop_s`` in the result: when our guard's
     hard-limit rule would have stopped the run (counted, not acted on). ``key``: rl_sar's
-    ``<robot>/<policy>`` (:mod:`bench.rl_sar_robot`: its folder in ``rl_sar``, its MJCF in
+    ``<robot>/<policy>`` (:mod:`.rl_sar_robot`: its folder in ``rl_sar``, its MJCF in
     ``unitree_mujoco``); ``robot``: the import it is compared with (default ``pushes``' robot),
     whose base body, feet and joints its MJCF must have and whose standing height judges the
-    fall (without one: ``STANDING_HEIGHT``). ``stand``: s the policy runs with a zero command
+    fall (without one: :func:`standing_height`). ``stand``: s the policy runs with a zero command
     after the get-up before the command is given (its gait's phase at the tile's first step;
     ``seconds`` and the crossing's time count from the command). ``start``: ``get-up``
     (rl_sar's: the ``home`` key dropped ``DROP`` m onto the ground, brought to default_dof_pos
     over 1 s with ``fixed_kp``/``fixed_kd``), or ``standing`` (our plant's spawn, as
     ``deploy-run --backend sim`` starts: default_dof_pos, the base level at the standing height
-    of ``robot``, else of ``motors``' import, else ``STANDING_HEIGHT``, above the ground at the
-    tile's centre, at rest; the policy from the first step).
+    of :func:`standing_height`, above the ground at the tile's centre, at rest; the policy from
+    the first step).
 
     Raises:
-        bench.rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
+        rl_sar_robot.Mismatch: the folder, the MJCF or the robot do not match (one line).
     """
     import torch
 
     robot = pushes[0] if robot is None and pushes is not None else robot
     cfg, folder = rl_sar_robot.read_folder(rl_sar, key)
-    standing = STANDING_HEIGHT if robot is None else robot.config.base.standing_height
+    standing = standing_height(key, robot, motors, unitree_mujoco)
     dt, decimation, n = float(cfg["dt"]), int(cfg["decimation"]), int(cfg["num_of_dofs"])
     if timestep is not None:  # the same policy period on a finer physics step
         decimation = int(round(dt * decimation / timestep))
@@ -230,12 +229,7 @@ def run(
     if start == "standing":  # our plant's spawn: the default pose on the ground, at rest
         adr = model.jnt_qposadr[model.sensor_objid[:n]]  # the joint of each angle reading
         data.qpos[adr[mapping]] = default
-        height = standing
-        if robot is None and motors is not None:  # the plant's import of --motors
-            from sim2real.robots.loading import load_robot
-
-            height = load_robot(motors).config.base.standing_height
-        data.qpos[:7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+        data.qpos[:7] = [0.0, 0.0, standing, 1.0, 0.0, 0.0, 0.0]
         if ground is not None:
             data.qpos[2] += float(ground.height_at(0.0, 0.0))
         data.qvel[:] = 0.0
@@ -260,13 +254,13 @@ def run(
     past_ticks = far_ticks = 0
     period = dt * decimation
     schedule = walk = base_pushes = None
-    if pushes is not None:  # the soak's schedule on this loop's policy ticks (bench.push_loops)
-        from bench.push_loops import _Walk
+    if pushes is not None:  # the soak's schedule on this loop's policy ticks (:mod:`.walk`)
         from sim2real.deploy.backends.sim.disturbances import SimDisturbances
         from sim2real.eval.world.pushes import DomainPushes
+        from sim2real.stacks.loops.walk import Walk
 
         schedule = DomainPushes([seed], pushes[1], period)
-        walk, base_pushes = _Walk(), SimDisturbances(pushes[0], [model], [data])
+        walk, base_pushes = Walk(), SimDisturbances(pushes[0], [model], [data])
     for k in range(steps):
         command = asked * (k >= stand_steps)
         if k % decimation == 0:
@@ -335,6 +329,33 @@ def run(
     return out
 
 
+def standing_height(key: str, robot=None, motors: Path | None = None, unitree_mujoco=None) -> float:
+    """m, the standing height of rl_sar's robot of ``key`` (``<robot>/<policy>``), which judges
+    its falls and places its ``standing`` start: the robot import given (``robot``, else
+    ``motors``' import), else the shipped robot of that name (``sim2real/robots/<robot>``:
+    go2's 0.3257 m), else the base height of the ``home`` key of its unitree_mujoco MJCF
+    (:func:`.rl_sar_robot.mjcf`: b2.xml's 0.5 m): never another robot's.
+
+    Raises:
+        rl_sar_robot.Mismatch: none of these (the MJCF missing or without a ``home`` key).
+    """
+    import sim2real.robots
+    from sim2real.robots.loading import load_robot
+
+    if robot is None and motors is not None:
+        robot = load_robot(motors)
+    name = key.split("/")[0]
+    if robot is None and (Path(sim2real.robots.__file__).parent / name / "robot.toml").is_file():
+        robot = load_robot(name)
+    if robot is not None:
+        return float(robot.config.base.standing_height)
+    xml = rl_sar_robot.mjcf(unitree_mujoco, key)
+    model = rl_sar_robot.load_spec(xml).compile()
+    if "home" not in [model.key(i).name for i in range(model.nkey)]:
+        raise rl_sar_robot.Mismatch(f"{xml}: keyframe 'home': none, and no import of '{name}'")
+    return float(model.key("home").qpos[2])
+
+
 def start_delay(seed: int, stand_max: float) -> float:
     """s a run of ``seed`` stands before its command (``--stand-max``): U(0, ``stand_max``)
     from ``numpy.random.default_rng([seed, 3])``; 0 without one."""
@@ -344,7 +365,7 @@ def start_delay(seed: int, stand_max: float) -> float:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(prog="python -m bench.himloco_terrain_loop")
+    p = argparse.ArgumentParser(prog="python -m sim2real.stacks.loops.himloco_terrain_loop")
     p.add_argument("rl_sar", type=Path, help="an rl_sar checkout (policy/<robot>/<policy>)")
     p.add_argument("unitree_mujoco", type=Path, help="a unitree_mujoco checkout")
     p.add_argument("tiles", nargs="+", help="--terrain tiles (stairs_up:0.10, slope_up:15deg)")

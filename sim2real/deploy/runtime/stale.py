@@ -96,7 +96,8 @@ class StaleStops:
         other = stale_context(rt.backend, e)
         other["joints"] = {n: t for n, t in other.get("joints", {}).items() if n in joints}
         if camera_s is not None and not joints and imu_s is None and map_s is None:
-            stream = f"depth camera '{cameras.block.camera}'"  # frozen or silent
+            kind = "colour" if cameras.block.kind == "rgb" else "depth"
+            stream = f"{kind} camera '{cameras.block.camera}'"  # frozen or silent
             other.update(stream=stream, other_side=cameras.stale_phrase(e))
         return {
             "tick": int(rt.ticks),

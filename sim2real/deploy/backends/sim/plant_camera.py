@@ -1,0 +1,229 @@
+"""What a simulated camera of a plant is, whatever it senses (:class:`PlantCamera`): the MJCF
+``<camera>`` rendered at its own rate and delivered after its latency, with the session's camera
+faults (:class:`CameraFaults`, drawn from :class:`CameraFaultRanges`). The depth camera
+(:mod:`sim2real.deploy.backends.sim.camera`) and the colour camera
+(:mod:`sim2real.deploy.backends.sim.rgb_camera`) make each frame's image; the timing and the
+faults are described in :mod:`sim2real.deploy.backends.sim.camera`'s docstring.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CameraFaults:
+    """A session's camera faults (module docstring): ``drop``, ``spike`` and ``freeze``
+    probabilities per frame, ``spike_latency`` s, ``freeze_frames`` frames; ``occlusion`` (a
+    fraction of the columns), ``extrinsic`` (rad) and ``lighting`` (the scene's light scaled by
+    it: a colour camera's; 1 is the model's own) for the session."""
+
+    drop: float = 0.0
+    spike: float = 0.0
+    spike_latency: float = 0.1
+    freeze: float = 0.0
+    freeze_frames: int = 10
+    occlusion: float = 0.0
+    extrinsic: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    lighting: float = 1.0
+
+    def __post_init__(self):
+        if not (
+            np.isfinite(self.lighting)
+            and self.lighting >= 0
+            and 0 <= self.occlusion <= 1
+            and len(self.extrinsic) == 3
+            and np.all(np.isfinite(self.extrinsic))
+            and 0 <= self.drop <= 1
+            and 0 <= self.spike <= 1
+            and 0 <= self.freeze <= 1
+            and self.spike_latency >= 0
+            and self.freeze_frames >= 1
+        ):
+            raise ValueError(
+                f"CameraFaults: probabilities and occlusion in [0, 1], spike_latency >= 0 s, "
+                f"freeze_frames >= 1, extrinsic 3 finite rad, lighting >= 0; got {self}"
+            )
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class PlantCamera:
+    """A camera on every env of ``plant`` at its own rate and latency, with per-frame faults
+    (module docstring): what the depth and the colour camera share. A subclass makes each
+    frame's image (:meth:`_sense`) and names the frame's fields (``image_field``,
+    ``stamp_field``).
+
+    Args:
+        plant: A simulated plant (its ``models``, ``datas``, ``envs``).
+        block: The policy's image block (its ``camera``, ``shape`` and ``frame_shape``).
+        rate: Frames per second (default the block's). latency: s from capture to delivery
+            (default the block's).
+        faults: The faults (default none): one :class:`CameraFaults` for every env, or a
+            sequence of one per env (a soak batch's sessions).
+        seed: Of the noise and fault draws: an int (one generator for every env), or a sequence
+            of one ``numpy.random.Generator`` per env (a soak session's own stream).
+        where: Named in a refusal (the robot's MJCF).
+
+    Attributes:
+        frames: (envs,) frames captured; delivered, dropped, spiked, frozen: counts (envs,).
+        faults: The env 0's faults; ``env_faults``: every env's.
+    """
+
+    image_field = "depth_image"
+    stamp_field = "depth_stamp"
+    dtype = np.float32
+
+    def __init__(self, plant, block, rate, latency, faults, seed, where: str, renderer):
+        self.plant, self.block = plant, block
+        self.rate = float(block.rate if rate is None else rate)
+        self.latency = float(block.latency if latency is None else latency)
+        if not (self.rate > 0 and self.latency >= 0):
+            raise ValueError(
+                f"{type(self).__name__}: rate > 0 Hz, latency >= 0 s; got {self.rate}, "
+                f"{self.latency}"
+            )
+        envs = plant.envs
+        if faults is None or isinstance(faults, CameraFaults):
+            self.env_faults = [faults or CameraFaults()] * envs
+        else:
+            self.env_faults = list(faults)
+            if len(self.env_faults) != envs:
+                raise ValueError(
+                    f"{type(self).__name__}: {len(self.env_faults)} faults, {envs} envs"
+                )
+        self.faults = self.env_faults[0]
+        if isinstance(seed, int | np.integer):
+            self.rng = np.random.default_rng(seed)
+            self.rngs = [self.rng] * envs
+        else:
+            self.rngs = list(seed)
+            self.rng = self.rngs[0]
+        self.renderers = [renderer(m, block.camera, block.shape, where) for m in plant.models]
+        for r, f in zip(self.renderers, self.env_faults, strict=True):
+            if any(f.extrinsic):  # the camera knocked on its mount: its MuJoCo pose turned
+                turn, quat = np.zeros(4), np.zeros(4)
+                mujoco.mju_euler2Quat(turn, np.asarray(f.extrinsic, float), "XYZ")
+                cid = r.cam.fixedcamid
+                mujoco.mju_mulQuat(quat, r.model.cam_quat[cid].copy(), turn)
+                r.model.cam_quat[cid] = quat
+        #: per env, the columns a covered lens blinds
+        self._blind = [int(round(f.occlusion * block.shape[1])) for f in self.env_faults]
+        self.frames = np.zeros(envs, dtype=np.int64)
+        self.delivered = np.zeros(envs, dtype=np.int64)
+        self.dropped = np.zeros(envs, dtype=np.int64)
+        self.spiked = np.zeros(envs, dtype=np.int64)
+        self.frozen = np.zeros(envs, dtype=np.int64)
+        self._freeze_left = np.zeros(envs, dtype=np.int64)
+        self._last = np.zeros((envs, *block.frame_shape), self.dtype)  # the last image made
+        #: per env, frames in flight: [(deliver_at s, stamp s, image)]
+        self._queue: list[list[tuple[float, float, np.ndarray]]] = [[] for _ in range(envs)]
+
+    def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
+        """Env ``e``'s image now through the sensor model, its covered columns blinded."""
+        raise NotImplementedError
+
+    def _capture(self, e: int, stamp: float) -> None:
+        f, rng = self.env_faults[e], self.rngs[e]
+        self.frames[e] += 1
+        if self._freeze_left[e] > 0:  # a stuck driver: the old image again, stamped anew
+            self._freeze_left[e] -= 1
+            self.frozen[e] += 1
+            image = self._last[e].copy()
+        else:
+            image = self._sense(e, rng)
+            self._last[e] = image
+            if f.freeze and rng.random() < f.freeze:
+                self._freeze_left[e] = f.freeze_frames
+        if f.drop and rng.random() < f.drop:
+            self.dropped[e] += 1
+            return
+        late = self.latency
+        if f.spike and rng.random() < f.spike:
+            self.spiked[e] += 1
+            late += f.spike_latency
+        self._queue[e].append((stamp + late, stamp, image))
+
+    def fill(self, frame) -> None:
+        """Capture the frames due by ``frame.time`` and write the newest delivered one into the
+        frame's image and stamp fields (``image_field``, ``stamp_field``; made on the first
+        call; module docstring)."""
+        envs = self.plant.envs
+        if getattr(frame, self.image_field, None) is None:
+            setattr(frame, self.image_field, np.zeros((envs, *self.block.frame_shape), self.dtype))
+            setattr(frame, self.stamp_field, np.full(envs, np.nan))
+        images, stamps = getattr(frame, self.image_field), getattr(frame, self.stamp_field)
+        now = np.broadcast_to(np.asarray(frame.time, dtype=float), (envs,))
+        for e in range(envs):
+            while self.frames[e] / self.rate <= now[e] + 1e-9:
+                self._capture(e, self.frames[e] / self.rate)
+            queue = self._queue[e]
+            ready = [item for item in queue if item[0] <= now[e] + 1e-9]
+            if ready:
+                newest = max(ready, key=lambda item: item[1])
+                self._queue[e] = [item for item in queue if item[1] > newest[1]]
+                self.delivered[e] += 1
+                images[e] = newest[2]
+                stamps[e] = newest[1]
+
+    def summary(self, env: int | None = None) -> dict:
+        """The run report's camera lines: rate, latency, faults and the counts per env (of env
+        ``env`` alone when given: its faults and counts as numbers)."""
+        counts = ("frames", "delivered", "dropped", "spiked", "frozen")
+        if env is not None:
+            return {
+                "camera": self.block.camera,
+                "kind": self.block.kind,
+                "rate_hz": self.rate,
+                "latency_s": self.latency,
+                "faults": self.env_faults[env].to_dict(),
+                **{k: int(getattr(self, k)[env]) for k in counts},
+            }
+        return {
+            "camera": self.block.camera,
+            "rate_hz": self.rate,
+            "latency_s": self.latency,
+            "faults": self.faults.to_dict(),
+            **{k: getattr(self, k).tolist() for k in counts},
+        }
+
+    def close(self) -> None:
+        for r in self.renderers:
+            r.close()
+
+
+@dataclass(frozen=True)
+class CameraFaultRanges:
+    """The ranges a session's :class:`CameraFaults` are drawn from, uniformly (our choice):
+    ``drop`` 0-5 % of frames, ``spike`` 0-2 % of frames 50-200 ms late, ``freeze`` 0-0.5 % of
+    frames starting a 5-30 frame spell, ``occlusion`` 0-10 % of the columns, ``extrinsic`` up
+    to 2 deg about each axis (a camera knocked on its mount), ``lighting`` the scene's light
+    times 0.5-1.5 (a lamp switched off or on, the sun through a window; a colour camera's)."""
+
+    drop: tuple[float, float] = (0.0, 0.05)
+    spike: tuple[float, float] = (0.0, 0.02)
+    spike_latency: tuple[float, float] = (0.05, 0.2)
+    freeze: tuple[float, float] = (0.0, 0.005)
+    freeze_frames: tuple[int, int] = (5, 30)
+    occlusion: tuple[float, float] = (0.0, 0.1)
+    extrinsic: float = float(np.radians(2.0))
+    lighting: tuple[float, float] = (0.5, 1.5)
+
+    def sample(self, rng: np.random.Generator) -> CameraFaults:
+        """One session's draw (eight draws of ``rng``, in the fields' order; ``extrinsic``
+        three uniform in +-``extrinsic`` rad; ``lighting`` last, so the others are what they
+        were before it was drawn)."""
+        return CameraFaults(
+            drop=float(rng.uniform(*self.drop)),
+            spike=float(rng.uniform(*self.spike)),
+            spike_latency=float(rng.uniform(*self.spike_latency)),
+            freeze=float(rng.uniform(*self.freeze)),
+            freeze_frames=int(rng.integers(self.freeze_frames[0], self.freeze_frames[1] + 1)),
+            occlusion=float(rng.uniform(*self.occlusion)),
+            extrinsic=tuple(float(v) for v in rng.uniform(-self.extrinsic, self.extrinsic, 3)),
+            lighting=float(rng.uniform(*self.lighting)),
+        )

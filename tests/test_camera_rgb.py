@@ -190,7 +190,9 @@ def test_the_plant_renders_colour_at_its_rate_and_lighting_occlusion_and_a_knock
         np.random.default_rng(0), np.random.default_rng(1)])  # fmt: skip
     bright, dim = camera.true_image(0).copy(), camera.true_image(1).copy()
     assert bright.mean() > 40 and dim.mean() < 0.6 * bright.mean()
-    frame = SimpleNamespace(time=np.full(2, 0.1))
+    frame = SimpleNamespace(time=np.zeros(2))
+    camera.fill(frame)
+    frame.time[:] = 0.1
     camera.fill(frame)
     assert list(camera.frames) == [3, 3]  # at 0, 0.04 and 0.08 s
     assert frame.rgb_image.shape == (2, 24, 32, 3) and frame.rgb_stamp[0] == pytest.approx(0.08)
@@ -235,3 +237,31 @@ def test_policy_export_inspect_shows_the_rgb_block(arm3, tmp_path, capsys):
         "left, right), resize 6x7 bilinear, RGB CHW x/255, mean [0.485, 0.456, 0.406] std "
         "[0.229, 0.224, 0.225], 2 frames 2 apart, latency 0 s"
     ) in out
+
+
+def test_deploy_run_refuses_a_colour_camera_the_robots_mjcf_lacks_in_one_line(
+    arm3, tmp_path, capsys
+):
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    policy = rgb_policy(arm3, tmp_path)  # the shipped arm3 has no <camera name="overhead">
+    code = deploy_run_main(["--robot", "arm3", "--policy", str(policy.path), "--duration", "0.2"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and len([line for line in err if "error" in line]) == 1
+    assert err[-1].startswith(f"deploy-run: error: {arm3.mjcf_path}: images[0].camera")
+    assert '<camera name="overhead">' in err[-1] and "(its cameras: none)" in err[-1]
+
+
+def test_a_resize_bigger_than_the_render_is_refused_naming_the_file_and_the_field(arm3, tmp_path):
+    from sim2real.deploy.spec.camera import DepthImageBlock
+
+    spec = replace(PolicySpec.for_robot(arm3), images=(TINY,))
+    text = spec.to_json().replace('"resize": [6, 7]', '"resize": [24, 7]')
+    with pytest.raises(ValueError) as err:
+        PolicySpec.from_json(text, "policy.onnx")
+    assert str(err.value) == (
+        "policy.onnx: images[0].resize: [24, 7] is bigger than the cropped render [12, 14]; "
+        "expected at most [12, 14] (rows, columns)"
+    )
+    depth = DepthImageBlock(shape=(12, 16), crop=(0, 0, 0, 0), resize=(13, 16))
+    assert depth.problems("images[0]")[0].startswith("images[0].resize: [13, 16] is bigger")

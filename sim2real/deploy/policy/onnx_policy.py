@@ -276,6 +276,13 @@ class OnnxPolicy:
         self._run()
         return self._action if self._finish is None else self._finish()
 
+    def bind_batch(self, batch: int) -> None:
+        """Bind the buffers for ``batch`` envs now, as the first call of that batch would (a
+        no-op when bound for it): the runtime's camera stage writes the image inputs
+        (:attr:`images`) before the first call. Raises ValueError: a fixed batch size differs."""
+        if batch != self._batch:
+            self._bind(batch)
+
     def _bind_input(self, array: np.ndarray) -> None:
         """Bind ``array`` (float32 (batch, obs_dim), C-contiguous) as the graph's input."""
         value = self._obs_value

@@ -117,6 +117,9 @@ class CameraInput:
         :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` binds), and the safe stop
         (``stale_sensor``) of the envs whose camera is stale."""
         images = getattr(policy, "images", {}).get(self.block.input)
+        if images is not None and images.shape[0] != self.envs and hasattr(policy, "bind_batch"):
+            policy.bind_batch(self.envs)  # bound for another batch yet: bind it for ours first
+            images = policy.images.get(self.block.input)
         supervision.safe_stop(self.update(frame, images), "stale_sensor")
 
     def _push(self, e: int, depth: np.ndarray, stamp: float) -> None:

@@ -102,7 +102,8 @@ _INTS = ("frames", "skip")
 class ImageGeometry:
     """What a depth and an RGB block share (no fields of its own: each block declares them):
     ``input``, ``camera``, ``shape`` (rows, columns), ``crop`` (top, bottom, left, right),
-    ``resize`` (rows, columns), ``interpolation``, ``frames``, ``skip``, ``rate`` (Hz) and
+    ``resize`` (rows, columns; at most the cropped frame's: a resize bigger than the render is
+    refused), ``interpolation``, ``frames``, ``skip``, ``rate`` (Hz) and
     ``latency`` (s), their checks and the JSON reading."""
 
     #: ``kind`` in the JSON (a depth block writes none: it is the default)
@@ -131,6 +132,11 @@ class ImageGeometry:
             return [
                 f"{where}.crop: {list(self.crop)} leaves {list(self.cropped)} of a "
                 f"{list(self.shape)} frame; expected at least 1 x 1 pixels"
+            ]
+        if self.resize[0] > self.cropped[0] or self.resize[1] > self.cropped[1]:
+            return [
+                f"{where}.resize: {list(self.resize)} is bigger than the cropped render "
+                f"{list(self.cropped)}; expected at most {list(self.cropped)} (rows, columns)"
             ]
         if self.interpolation not in INTERPOLATIONS:
             return [f"{where}.interpolation: '{self.interpolation}', expected {INTERPOLATIONS}"]
@@ -274,7 +280,8 @@ class RgbImageBlock(ImageGeometry):
         camera: The MJCF ``<camera name>`` in simulation, the device on hardware.
         shape: (rows, columns) of a frame as the camera delivers it (uint8 RGB).
         crop: (top, bottom, left, right) pixels cut off. resize: (rows, columns) of the graph's
-            image (at most the cropped frame's: a policy is not fed invented pixels).
+            image (at most the cropped frame's, as a depth block's: a policy is not fed
+            invented pixels).
         interpolation: ``bilinear`` or ``nearest``.
         channel_order: ``RGB`` or ``BGR`` (the graph's). layout: ``CHW`` or ``HWC``.
         normalisation: ``unit`` (x / 255) or ``mean_std`` (then ``(x - mean) / std``).
@@ -324,11 +331,6 @@ class RgbImageBlock(ImageGeometry):
         problems = self.geometry_problems(where)
         if problems:
             return problems
-        if self.resize[0] > self.cropped[0] or self.resize[1] > self.cropped[1]:
-            return [
-                f"{where}.resize: {list(self.resize)} is bigger than the cropped render "
-                f"{list(self.cropped)}; expected at most {list(self.cropped)} (rows, columns)"
-            ]
         choices = {
             "channel_order": CHANNEL_ORDERS,
             "layout": LAYOUTS,

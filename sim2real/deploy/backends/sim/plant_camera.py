@@ -114,6 +114,10 @@ class PlantCamera:
         #: per env, the columns a covered lens blinds
         self._blind = [int(round(f.occlusion * block.shape[1])) for f in self.env_faults]
         self.frames = np.zeros(envs, dtype=np.int64)
+        #: per env, the index of the next frame to capture (-1: the first fill's frame, the last
+        #: due by its time: a camera attached to a plant resumed from a checkpoint streams from
+        #: there, not from 0 s)
+        self._next = np.full(envs, -1, dtype=np.int64)
         self.delivered = np.zeros(envs, dtype=np.int64)
         self.dropped = np.zeros(envs, dtype=np.int64)
         self.spiked = np.zeros(envs, dtype=np.int64)
@@ -130,6 +134,7 @@ class PlantCamera:
     def _capture(self, e: int, stamp: float) -> None:
         f, rng = self.env_faults[e], self.rngs[e]
         self.frames[e] += 1
+        self._next[e] += 1
         if self._freeze_left[e] > 0:  # a stuck driver: the old image again, stamped anew
             self._freeze_left[e] -= 1
             self.frozen[e] += 1
@@ -159,8 +164,10 @@ class PlantCamera:
         images, stamps = getattr(frame, self.image_field), getattr(frame, self.stamp_field)
         now = np.broadcast_to(np.asarray(frame.time, dtype=float), (envs,))
         for e in range(envs):
-            while self.frames[e] / self.rate <= now[e] + 1e-9:
-                self._capture(e, self.frames[e] / self.rate)
+            if self._next[e] < 0:
+                self._next[e] = max(int(np.floor(now[e] * self.rate + 1e-9)), 0)
+            while self._next[e] / self.rate <= now[e] + 1e-9:
+                self._capture(e, self._next[e] / self.rate)
             queue = self._queue[e]
             ready = [item for item in queue if item[0] <= now[e] + 1e-9]
             if ready:

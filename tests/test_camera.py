@@ -307,7 +307,12 @@ def test_the_bench_item_times_the_render_and_states_the_error_at_1_m_and_2_m(tmp
     assert [r["what"] for r in sec["rows"]] == [
         "render 60 x 106 (Extreme Parkour)",
         "render 240 x 424",
+        "render RGB 96 x 128",
+        "RGB sensor model 96 x 128",
+        "render RGB 480 x 640 (LeRobot)",
+        "RGB sensor model 480 x 640",
         "preprocess 60 x 106 -> 58 x 87",
+        "preprocess RGB 480 x 640 -> 96 x 128",
     ]
     assert all(r["samples"] == 5 and r["p50_us"] > 0 for r in sec["rows"])
     errors = {e["at_m"]: e for e in sec["errors"]}

@@ -85,16 +85,32 @@ class RgbNoise:
             )
 
     def apply(
-        self, rgb: np.ndarray, state: np.ndarray, rng: np.random.Generator, blind: int = 0
+        self,
+        rgb: np.ndarray,
+        state: np.ndarray,
+        rng: np.random.Generator,
+        blind: int = 0,
+        normals: np.ndarray | None = None,
     ) -> np.ndarray:
         """(rows, columns, 3) uint8 rendered -> the camera's uint8, with the drift ``state``
-        (4,) and the ``blind`` leftmost columns covered."""
-        x = rgb.astype(np.float32) / 255.0
+        (4,) and the ``blind`` leftmost columns covered; ``normals``: float32 standard normal
+        draws of the image's shape (default drawn from ``rng``)."""
+        x = rgb.astype(np.float32)
+        x *= (np.exp(state[0] + state[1:4]) / 255.0).astype(np.float32)
         if blind:
-            x[:, :blind] = COVERED
-        x *= np.exp(state[0] + state[1:4]).astype(np.float32)
-        x += rng.standard_normal(x.shape, dtype=np.float32) * self.sigma(x).astype(np.float32)
-        return np.round(np.clip(x, 0.0, 1.0) * 255.0).astype(np.uint8)
+            x[:, :blind] = COVERED * np.exp(state[0] + state[1:4])
+        if normals is None:
+            normals = rng.standard_normal(x.shape, dtype=np.float32)
+        sigma = np.maximum(x, 0.0)
+        sigma *= np.float32(1.0 / self.full_well)
+        sigma += np.float32(self.read_noise**2)
+        np.sqrt(sigma, out=sigma)
+        sigma *= normals
+        x += sigma
+        np.clip(x, 0.0, 1.0, out=x)
+        x *= 255.0
+        x += 0.5  # round half up: x >= 0
+        return x.astype(np.uint8)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -141,6 +157,12 @@ class PlantRgbCamera(PlantCamera):
                 r.set_lighting(f.lighting)
         self.drift = np.zeros((plant.envs, 4))
         self._truth = np.zeros(block.frame_shape, np.uint8)
+        #: per env, a pool of standard normal draws, twice a frame's size, made at its first
+        #: frame: each frame reads a window of it at an offset drawn from the env's generator
+        #: (one draw a frame instead of one per pixel: a 640 x 480 frame's 0.9 M normals cost
+        #: more than its render on this machine; the windows overlap, a frame's noise is no
+        #: copy of another's unless two offsets are equal)
+        self._pool: list[np.ndarray | None] = [None] * plant.envs
 
     def true_image(self, env: int = 0) -> np.ndarray:
         """(rows, columns, 3) uint8, the rendered image of env ``env`` now (no sensor model)."""
@@ -148,7 +170,12 @@ class PlantRgbCamera(PlantCamera):
 
     def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
         self.noise.drift(self.drift[e], 1.0 / self.rate, rng)
-        return self.noise.apply(self.true_image(e), self.drift[e], rng, self._blind[e])
+        size = int(np.prod(self.block.frame_shape))
+        if self._pool[e] is None:
+            self._pool[e] = rng.standard_normal(2 * size, dtype=np.float32)
+        start = int(rng.integers(size))
+        normals = self._pool[e][start : start + size].reshape(self.block.frame_shape)
+        return self.noise.apply(self.true_image(e), self.drift[e], rng, self._blind[e], normals)
 
     def summary(self, env: int | None = None) -> dict:
         """:meth:`PlantCamera.summary` plus the sensor model."""

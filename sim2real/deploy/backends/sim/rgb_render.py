@@ -2,8 +2,10 @@
 
 The drawing (OpenGL context by ``MUJOCO_GL``, EGL where unset on a headless Linux machine; triton
 imported first) is :class:`sim2real.deploy.backends.sim.depth_render.OffscreenCamera`'s. The
-colour renderer keeps MuJoCo's shadows and reflections (a camera sees them) and turns off
-multisampling (its cost; a camera's own anti-aliasing is its lens's blur, not modelled).
+colour renderer draws without shadows and reflections unless asked (``shadows``): on Mesa's
+software renderer MuJoCo's 4096 x 4096 shadow map cost about 230 ms a frame, ten times the
+frame itself (``bench.camera_cost``, docs/cameras.md); without multisampling (its cost; a
+camera's own anti-aliasing is its lens's blur, not modelled). The skybox stays.
 A lighting change (:meth:`RgbRenderer.set_lighting`) scales the headlight's and every light's
 ambient and diffuse colour in the renderer's copy of the model.
 """
@@ -23,13 +25,22 @@ class RgbRenderer(OffscreenCamera):
     Args:
         model: The model (a copy is rendered). camera: The ``<camera>``'s name.
         shape: (rows, columns). where: Named in errors.
+        shadows: Draw shadows and reflections (module docstring: their cost).
 
     Raises:
         CameraError: no such camera. RuntimeError: no OpenGL context (naming ``MUJOCO_GL``).
     """
 
-    def __init__(self, model: mujoco.MjModel, camera: str, shape: tuple[int, int], where: str):
-        super().__init__(model, camera, shape, where)
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        camera: str,
+        shape: tuple[int, int],
+        where: str,
+        shadows: bool = False,
+    ):
+        off = () if shadows else ("mjRND_SHADOW", "mjRND_REFLECTION")
+        super().__init__(model, camera, shape, where, off)
         self._rgb = np.zeros((*self.shape, 3), np.uint8)
         m = self.model
         self._lights = (

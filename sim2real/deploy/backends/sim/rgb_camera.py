@@ -169,13 +169,19 @@ class PlantRgbCamera(PlantCamera):
         return self.renderers[env].render(self.plant.datas[env], self._truth)
 
     def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
+        return self.sensor(e, self.true_image(e), rng)
+
+    def sensor(self, e: int, rendered: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Env ``e``'s sensor model on a rendered (rows, columns, 3) uint8 image, as a frame
+        captures it: the drift advanced one frame, the noise from the env's pool (made at its
+        first frame), the covered columns; uint8 (rows, columns, 3)."""
         self.noise.drift(self.drift[e], 1.0 / self.rate, rng)
         size = int(np.prod(self.block.frame_shape))
         if self._pool[e] is None:
             self._pool[e] = rng.standard_normal(2 * size, dtype=np.float32)
         start = int(rng.integers(size))
         normals = self._pool[e][start : start + size].reshape(self.block.frame_shape)
-        return self.noise.apply(self.true_image(e), self.drift[e], rng, self._blind[e], normals)
+        return self.noise.apply(rendered, self.drift[e], rng, self._blind[e], normals)
 
     def summary(self, env: int | None = None) -> dict:
         """:meth:`PlantCamera.summary` plus the sensor model."""

@@ -57,3 +57,25 @@ def test_a_soak_batch_of_a_camera_policy_draws_each_sessions_camera_faults(tmp_p
         assert camera["frames"] >= 30  # 3 s at 10 Hz, once started
         assert camera["frames_taken"] + camera["frames_repeated"] <= camera["delivered"]
     assert results[0]["camera"]["faults"] != results[1]["camera"]["faults"]
+
+
+@needs_gl
+def test_deploy_run_renders_a_colour_camera_with_the_runs_drawn_faults(tmp_path, capsys):
+    import json
+
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    folder = overhead_arm3(tmp_path / "arm3_overhead")
+    policy = rgb_policy(load_robot(folder), tmp_path)
+    report = tmp_path / "report.json"
+    code = deploy_run_main(
+        ["--robot", str(folder), "--policy", str(policy.path), "--duration", "0.5",
+         "--camera-faults", "drawn", "--seed", "4", "--report", str(report)]
+    )  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code != 3, out + err  # a frozen spell may stop it: a safe stop, not a refusal
+    assert "deploy-run: colour camera 'overhead' 12x16 at 25 Hz" in err
+    drawn = CameraFaultRanges().sample(np.random.default_rng([4, 99])).to_dict()
+    camera = json.loads(report.read_text())["camera"]
+    assert camera["plant"]["faults"] == json.loads(json.dumps(drawn))
+    assert camera["plant"]["noise"]["full_well"] == 4300.0 and camera["frames_taken"][0] >= 5

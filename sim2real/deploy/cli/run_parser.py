@@ -256,13 +256,14 @@ def _add_motion_options(p: argparse.ArgumentParser) -> None:
 
 
 def _add_camera_options(p: argparse.ArgumentParser) -> None:
-    """Add a depth camera's options (``--backend sim``): its rate, latency and faults."""
+    """Add a camera's options (``--backend sim``, depth or colour): its rate, latency and
+    faults."""
     p.add_argument(
         "--camera-rate",
         type=float,
         default=None,
         metavar="HZ",
-        help="--backend sim, a policy with a depth image input: the camera's frame rate "
+        help="--backend sim, a policy with an image input (depth or RGB): the camera's frame rate "
         "(default the rate its spec's images entry names; sim2real/deploy/backends/sim/camera.py)",
     )
     p.add_argument(
@@ -278,7 +279,8 @@ def _add_camera_options(p: argparse.ArgumentParser) -> None:
         choices=("none", "drawn"),
         default="none",
         help="--backend sim: 'drawn', the run's camera faults (dropped, late and frozen frames, "
-        "a covered lens, a knocked mount) drawn from --seed (CameraFaultRanges); default none",
+        "a covered lens, a knocked mount, a lighting change) drawn from --seed "
+        "(CameraFaultRanges); default none",
     )
 
 

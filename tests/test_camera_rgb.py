@@ -221,8 +221,13 @@ def test_the_runtime_feeds_a_two_input_policy_colour_frames_and_a_frozen_camera_
             assert policy.graph_action[0, 0] == pytest.approx(0.1 * image.mean(), abs=1e-6)
         else:
             assert FAULT_CAUSES[rt.cause[0]] == "stale_sensor"
-            verdict = rt.stale_stops.records[0]["verdict"]
+            record = rt.stale_stops.records[0]
+            verdict = record["verdict"]
             assert verdict.startswith("colour camera 'overhead'") and "(frozen)" in verdict
+            followed = record["other_side"]["camera_faults"]  # what the plant's camera did
+            assert followed["frozen"] >= 3 and followed["dropped"] == 0
+            assert followed["last"]["fault"] == "frozen"
+            assert "in the 1 s before: " in verdict and " frames frozen, 0 dropped" in verdict
 
 
 def test_policy_export_inspect_shows_the_rgb_block(arm3, tmp_path, capsys):

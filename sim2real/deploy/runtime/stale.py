@@ -99,6 +99,13 @@ class StaleStops:
             kind = "colour" if cameras.block.kind == "rgb" else "depth"
             stream = f"{kind} camera '{cameras.block.camera}'"  # frozen or silent
             other.update(stream=stream, other_side=cameras.stale_phrase(e))
+            source = cameras.source  # a plant camera says which of its faults came before
+            if source is not None and hasattr(source, "recent"):
+                done = other["camera_faults"] = source.recent(e, float(rt.time))
+                other["other_side"] += (
+                    f"; in the {done['window_s']:g} s before: {done['frozen']} frames frozen, "
+                    f"{done['dropped']} dropped, {done['spiked']} late"
+                )
         return {
             "tick": int(rt.ticks),
             "t_s": round(float(rt.time), 6),

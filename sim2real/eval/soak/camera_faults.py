@@ -68,7 +68,10 @@ def camera_result(session) -> dict:
     kind, rate_hz, latency_s, faults (the drawn CameraFaults), frames, delivered, dropped,
     spiked, frozen (the plant's counts), frames_taken, frames_repeated (the runtime's: fresh
     frames and frozen ones refused), oldest_s (the largest age of the last fresh frame, s),
-    stale_stops (the runtime's stale stops of this session whose stream was the camera)}}``."""
+    stale_stops (the runtime's stale stops of this session that the camera caused, each
+    ``{t_s, camera_s, followed}``: its time, the last fresh frame's age and what the camera's
+    faults did in the second before, :meth:`~sim2real.deploy.backends.sim.plant_camera.
+    PlantCamera.recent`)}}``."""
     b, e = session.batch, session.e
     source = getattr(b.backend, "camera_source", None)
     stage = getattr(b.rt, "cameras", None)
@@ -85,6 +88,13 @@ def camera_result(session) -> dict:
             "frames_taken": int(stage.taken[e]),
             "frames_repeated": int(stage.repeated[e]),
             "oldest_s": round(float(stage.oldest[e]), 6),
-            "stale_stops": len(stops),
+            "stale_stops": [
+                {
+                    "t_s": r["t_s"],
+                    "camera_s": r["camera_s"],
+                    "followed": r.get("other_side", {}).get("camera_faults"),
+                }
+                for r in stops
+            ],
         }
     }

@@ -8,10 +8,14 @@ faults are described in :mod:`sim2real.deploy.backends.sim.camera`'s docstring.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import asdict, dataclass
 
 import mujoco
 import numpy as np
+
+#: Faulted frames each env's camera remembers for :meth:`PlantCamera.recent` (our choice).
+RECENT_EVENTS = 256
 
 
 @dataclass(frozen=True)
@@ -124,6 +128,8 @@ class PlantCamera:
         self.frozen = np.zeros(envs, dtype=np.int64)
         self._freeze_left = np.zeros(envs, dtype=np.int64)
         self._last = np.zeros((envs, *block.frame_shape), self.dtype)  # the last image made
+        #: per env, the latest faulted frames: (stamp s, 'dropped' | 'spiked' | 'frozen')
+        self._events = [deque(maxlen=RECENT_EVENTS) for _ in range(envs)]
         #: per env, frames in flight: [(deliver_at s, stamp s, image)]
         self._queue: list[list[tuple[float, float, np.ndarray]]] = [[] for _ in range(envs)]
 
@@ -138,6 +144,7 @@ class PlantCamera:
         if self._freeze_left[e] > 0:  # a stuck driver: the old image again, stamped anew
             self._freeze_left[e] -= 1
             self.frozen[e] += 1
+            self._events[e].append((stamp, "frozen"))
             image = self._last[e].copy()
         else:
             image = self._sense(e, rng)
@@ -146,10 +153,12 @@ class PlantCamera:
                 self._freeze_left[e] = f.freeze_frames
         if f.drop and rng.random() < f.drop:
             self.dropped[e] += 1
+            self._events[e].append((stamp, "dropped"))
             return
         late = self.latency
         if f.spike and rng.random() < f.spike:
             self.spiked[e] += 1
+            self._events[e].append((stamp, "spiked"))
             late += f.spike_latency
         self._queue[e].append((stamp + late, stamp, image))
 
@@ -176,6 +185,19 @@ class PlantCamera:
                 self.delivered[e] += 1
                 images[e] = newest[2]
                 stamps[e] = newest[1]
+
+    def recent(self, env: int, now: float, window: float = 1.0) -> dict:
+        """What env ``env``'s camera faults did in the ``window`` s before ``now``: frames
+        ``dropped``, ``spiked`` (late) and ``frozen`` captured then, and the ``last`` faulted
+        frame's fault and capture time (None: none among the latest ``RECENT_EVENTS``); a stale
+        stop's record names it (:mod:`sim2real.deploy.runtime.stale`)."""
+        counts = {"dropped": 0, "spiked": 0, "frozen": 0}
+        for stamp, kind in self._events[env]:
+            if now - window < stamp <= now + 1e-9:
+                counts[kind] += 1
+        events = self._events[env]
+        last = {"fault": events[-1][1], "stamp_s": events[-1][0]} if events else None
+        return {"window_s": window, **counts, "last": last}
 
     def summary(self, env: int | None = None) -> dict:
         """The run report's camera lines: rate, latency, faults and the counts per env (of env

@@ -135,20 +135,20 @@ def measure(out: Path, frames: int) -> dict:
             timings[f"RGB sensor model {name.split(' (')[0]}"] = sensor
     except RuntimeError as exc:  # no OpenGL context: the message names MUJOCO_GL
         return {"skipped": str(exc)}
-    frame = np.full((1, *small.shape), 1.5, np.float32)
-    costs = []
-    for _ in range(frames):
-        t0 = time.perf_counter_ns()
-        preprocess(frame, small)
-        costs.append(time.perf_counter_ns() - t0)
-    timings["preprocess 60 x 106 -> 58 x 87"] = np.asarray(costs, dtype=np.int64)
-    frame = np.full((1, *rgb_large.frame_shape), 128, np.uint8)
-    costs = []
-    for _ in range(frames):
-        t0 = time.perf_counter_ns()
-        preprocess(frame, rgb_large)
-        costs.append(time.perf_counter_ns() - t0)
-    timings["preprocess RGB 480 x 640 -> 96 x 128"] = np.asarray(costs, dtype=np.int64)
+    for name, block, frame in (
+        ("preprocess 60 x 106 -> 58 x 87", small, np.full((1, *small.shape), 1.5, np.float32)),
+        (
+            "preprocess RGB 480 x 640 -> 96 x 128",
+            rgb_large,
+            np.full((1, *rgb_large.frame_shape), 128, np.uint8),
+        ),
+    ):
+        costs = []
+        for _ in range(frames):
+            t0 = time.perf_counter_ns()
+            preprocess(frame, block)
+            costs.append(time.perf_counter_ns() - t0)
+        timings[name] = np.asarray(costs, dtype=np.int64)
     rows = [{"what": k, **_percentiles(v)} for k, v in timings.items()]
     errors = [
         {

@@ -12,7 +12,6 @@ from types import SimpleNamespace
 import mujoco
 import numpy as np
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 from sim2real.deploy.backends.sim.camera import CameraFaults, attach_plant_camera
 from sim2real.deploy.backends.sim.plant import SimBackend
@@ -29,7 +28,7 @@ from sim2real.deploy.spec.camera import (
 )
 from sim2real.deploy.spec.onnx_checks import PolicyLoadError
 from sim2real.deploy.spec.policy_spec import PolicySpec
-from tests.test_camera import egl_works, needs_gl  # noqa: F401 - egl_works: needs_gl's condition
+from tests.test_camera import depth_policy, egl_works, needs_gl  # noqa: F401 - egl_works: needs_gl's condition
 
 #: A tiny colour image: 12 x 16 delivered, one column off each side, resized to 6 x 7, two
 #: frames two apart, 25 Hz.
@@ -117,39 +116,9 @@ def test_the_camera_stage_stacks_rgb_frames_skip_apart_and_a_repeated_image_is_n
 
 
 def rgb_policy(robot, tmp_path, block=TINY, stored=None) -> OnnxPolicy:
-    """A two-input policy: every action is the mean of the colour image input over ten."""
-    spec = replace(PolicySpec.for_robot(robot), images=(block,))
-    d, n = spec.obs_dim, spec.act_dim
-    nodes = [
-        helper.make_node("MatMul", ["obs", "w"], ["zero"]),
-        helper.make_node("ReduceMean", ["rgb", "axes"], ["mean"], keepdims=0),
-        helper.make_node("Mul", ["mean", "tenth"], ["small"]),
-        helper.make_node("Unsqueeze", ["small", "one"], ["column"]),
-        helper.make_node("Add", ["zero", "column"], ["action"]),
-    ]
-    weights = {
-        "w": np.zeros((d, n), np.float32),
-        "axes": np.array([1, 2, 3, 4], np.int64),
-        "one": np.array([1], np.int64),
-        "tenth": np.array(0.1, np.float32),
-    }
-    graph = helper.make_graph(
-        nodes,
-        "rgb_mean",
-        [
-            helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d]),
-            helper.make_tensor_value_info("rgb", TensorProto.FLOAT, ["batch", *block.input_shape]),
-        ],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
-        initializer=[numpy_helper.from_array(v, k) for k, v in weights.items()],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
-    model.ir_version = 9
-    stored = spec if stored is None else replace(spec, images=(stored,))
-    helper.set_model_props(model, {"policy_spec": stored.to_json()})
-    path = tmp_path / "rgb.onnx"
-    path.write_bytes(model.SerializeToString())
-    return OnnxPolicy(path, robot)
+    """A two-input policy: every action is the mean of the colour image input over ten
+    (:func:`tests.test_camera.depth_policy`, which takes either kind of block)."""
+    return depth_policy(robot, tmp_path, block, stored)
 
 
 def test_a_graph_input_of_another_layout_than_the_rgb_block_is_refused_in_one_line(arm3, tmp_path):

@@ -34,10 +34,11 @@ An RGB frame is (height, width, 3) uint8 in R, G, B order (a driver delivering O
 it first). :func:`preprocess` of an :class:`RgbImageBlock`: crop; resize (as above, each channel);
 scale to [0, 1] (``x / 255``, torchvision's ``to_tensor`` and LeRobot's image features);
 ``normalisation`` ``mean_std``: ``(x - mean) / std`` per channel (the graph's channel order;
-ImageNet's by default, the statistics of the ResNet-18 backbones LeRobot's ACT and Diffusion
-Policy start from); then the graph's ``channel_order`` (``BGR`` flips the channels) and
-``layout``: ``CHW`` gives float32 (batch, frames, 3, rows, columns), ``HWC`` (batch, frames,
-rows, columns, 3).
+ImageNet's by default, the statistics of torchvision's ImageNet ResNet-18 weights that LeRobot's
+ACT configuration names as its backbone's ``pretrained_backbone_weights``; a LeRobot policy's own
+dataset statistics, per channel, go in ``mean`` and ``std``); then the graph's
+``channel_order`` (``BGR`` flips the channels) and ``layout``: ``CHW`` gives float32 (batch,
+frames, 3, rows, columns), ``HWC`` (batch, frames, rows, columns, 3).
 """
 
 from __future__ import annotations
@@ -67,11 +68,13 @@ RGB_NORMALISATIONS = ("unit", "mean_std")
 CHANNEL_ORDERS = ("RGB", "BGR")
 LAYOUTS = ("CHW", "HWC")
 #: ImageNet's per-channel mean and standard deviation (R, G, B) of a [0, 1] image: torchvision's
-#: ``ResNet18_Weights.IMAGENET1K_V1`` transforms, the backbone LeRobot's ACT and Diffusion Policy
-#: start from.
+#: ``ResNet18_Weights.IMAGENET1K_V1`` transforms (the backbone weights LeRobot's ACT
+#: configuration names).
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
-#: LeRobot's SO-100/SO-101 camera configurations (``OpenCVCameraConfig``: 640 x 480 at 30 fps).
+#: The cameras of LeRobot's SO-100 examples (huggingface/lerobot
+#: ``examples/tutorial/async-inf/robot_client.py``: ``OpenCVCameraConfig(..., width=640,
+#: height=480, fps=30)``), a UVC webcam's usual default profile.
 LEROBOT_SHAPE = (480, 640)
 LEROBOT_FPS = 30.0
 
@@ -271,8 +274,8 @@ class DepthImageBlock(ImageGeometry):
 @dataclass(frozen=True)
 class RgbImageBlock(ImageGeometry):
     """One colour image input of a policy (module docstring; JSON: an entry of a spec's
-    ``images`` with ``"kind": "rgb"``). Defaults: LeRobot's SO-100/SO-101 cameras (640 x 480 at
-    30 fps, one frame, CHW RGB in [0, 1]).
+    ``images`` with ``"kind": "rgb"``). Defaults: the cameras of LeRobot's SO-100 examples
+    (640 x 480 at 30 fps; ``LEROBOT_SHAPE``), one frame, CHW RGB in [0, 1].
 
     Attributes:
         input: The graph's input name: float32 (batch, frames, 3, rows, columns) with ``CHW``,

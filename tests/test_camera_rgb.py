@@ -239,3 +239,60 @@ def test_a_resize_bigger_than_the_render_is_refused_naming_the_file_and_the_fiel
     )
     depth = DepthImageBlock(shape=(12, 16), crop=(0, 0, 0, 0), resize=(13, 16))
     assert depth.problems("images[0]")[0].startswith("images[0].resize: [13, 16] is bigger")
+
+
+@needs_gl
+def test_a_plant_camera_loaded_from_its_state_dict_delivers_the_same_frames(arm3):
+    model = overhead_model(arm3)
+    plant = SimBackend(arm3, "position", envs=2, models=[model, model])
+    faults = CameraFaults(drop=0.2, spike=0.3, spike_latency=0.1, freeze=0.1, freeze_frames=3)
+    make = lambda: PlantRgbCamera(plant, TINY, latency=0.05, faults=faults, seed=7)  # noqa: E731
+    source, frame = make(), SimpleNamespace(time=np.zeros(2))
+    for t in np.arange(0.0, 0.5, 0.01):
+        frame.time[:] = t
+        source.fill(frame)
+    assert any(source._queue)  # frames in flight at the checkpoint
+    copy = make()
+    copy.load_state_dict(source.state_dict())
+    other = SimpleNamespace(time=frame.time.copy(), rgb_image=frame.rgb_image.copy(),
+                            rgb_stamp=frame.rgb_stamp.copy())  # fmt: skip
+    for t in np.arange(0.5, 1.0, 0.01):
+        frame.time[:] = other.time[:] = t
+        source.fill(frame)
+        copy.fill(other)
+        np.testing.assert_array_equal(other.rgb_image, frame.rgb_image)
+        np.testing.assert_array_equal(other.rgb_stamp, frame.rgb_stamp)
+    assert copy.summary() == source.summary() and source.spiked.sum() > 0
+    one = PlantRgbCamera(
+        SimBackend(arm3, "position", envs=1, models=[model]),
+        TINY,
+        latency=0.05,
+        faults=faults,
+        seed=7,
+    )
+    one.load_state_dict(source.state_dict(env=1))  # one env of a batch into a one-env camera
+    assert one.frames[0] == source.frames[1]
+
+
+@needs_gl
+def test_a_runtime_resumed_from_its_state_dict_feeds_the_same_colour_images(arm3, tmp_path):
+    def start():
+        policy = rgb_policy(arm3, tmp_path)
+        mode = policy.spec.action.mode
+        plant = SimBackend(arm3, mode, envs=2, models=[overhead_model(arm3, mode)] * 2)
+        faults = CameraFaults(spike=0.3, spike_latency=0.1, drop=0.1)
+        attach_plant_camera(plant, policy.spec, latency=0.05, faults=faults, seed=3)
+        rt = Runtime(arm3, policy, plant)
+        rt.start()
+        return rt, policy
+
+    (first, seen), (resumed, fed) = start(), start()
+    first.run(37)
+    state = first.state_dict()
+    assert "camera_source/queue_image" in state and "camera_source/streams" in state
+    resumed.load_state_dict(state)
+    for _ in range(30):
+        first.run(1)
+        resumed.run(1)
+        np.testing.assert_array_equal(fed.images["rgb"], seen.images["rgb"])
+    assert resumed.cameras.taken.tolist() == first.cameras.taken.tolist()

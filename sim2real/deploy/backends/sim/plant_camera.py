@@ -14,6 +14,15 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
+from sim2real.deploy.core.stateful import (
+    env_list,
+    put,
+    read_streams,
+    set_streams,
+    streams_json,
+    take,
+)
+
 #: Faulted frames each env's camera remembers for :meth:`PlantCamera.recent` (our choice).
 RECENT_EVENTS = 256
 
@@ -132,6 +141,9 @@ class PlantCamera:
         self._events = [deque(maxlen=RECENT_EVENTS) for _ in range(envs)]
         #: per env, frames in flight: [(deliver_at s, stamp s, image)]
         self._queue: list[list[tuple[float, float, np.ndarray]]] = [[] for _ in range(envs)]
+        #: the most frames in flight at once: each stays at most latency + spike_latency s
+        spike = max(f.spike_latency for f in self.env_faults)
+        self.in_flight = int(np.ceil((self.latency + spike) * self.rate)) + 2
 
     def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
         """Env ``e``'s image now through the sensor model, its covered columns blinded."""
@@ -219,6 +231,62 @@ class PlantCamera:
             "faults": self.faults.to_dict(),
             **{k: getattr(self, k).tolist() for k in counts},
         }
+
+    def _fields(self) -> dict:
+        """The per-env arrays of the state (leading env axis); a subclass adds its own."""
+        return {
+            "frames": self.frames,
+            "delivered": self.delivered,
+            "dropped": self.dropped,
+            "spiked": self.spiked,
+            "frozen": self.frozen,
+            "freeze_left": self._freeze_left,
+            "next": self._next,
+            "last": self._last,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """The counts, the next frame's index, the frozen spell, the last image, the frames in
+        flight (``queue_deliver``, ``queue_stamp`` s, NaN: none; ``queue_image``; at most
+        :attr:`in_flight` per env) and each env's random stream (JSON; :mod:`sim2real.deploy.
+        core.stateful`): a fresh camera of the same arguments loaded with it captures and
+        delivers the same frames. The recent faults (:meth:`recent`) are not kept."""
+        envs = env_list(self.plant.envs, env)
+        deliver = np.full((len(envs), self.in_flight), np.nan)
+        stamp = np.full((len(envs), self.in_flight), np.nan)
+        image = np.zeros((len(envs), self.in_flight, *self.block.frame_shape), self.dtype)
+        for i, e in enumerate(envs):
+            for j, (at, st, im) in enumerate(self._queue[e][: self.in_flight]):
+                deliver[i, j], stamp[i, j], image[i, j] = at, st, im
+        return {
+            **take(self._fields(), env),
+            "queue_deliver": deliver,
+            "queue_stamp": stamp,
+            "queue_image": image,
+            "streams": streams_json(self.rngs, envs),
+        }
+
+    def load_state_dict(self, state, env: int | None = None) -> None:
+        """Raises StateDictError: a missing field or another shape (nothing written)."""
+        envs = env_list(self.plant.envs, env)
+        queue = {
+            "queue_deliver": np.zeros((self.plant.envs, self.in_flight)),
+            "queue_stamp": np.zeros((self.plant.envs, self.in_flight)),
+            "queue_image": np.zeros((self.plant.envs, self.in_flight, *self.block.frame_shape)),
+        }
+        streams = read_streams(state, "streams", len(envs))
+        put({**self._fields(), **queue}, state, env)  # checks every field first
+        set_streams(self.rngs, envs, streams, "streams")
+        for i, e in enumerate(envs):
+            self._events[e].clear()
+            self._queue[e] = [
+                (float(at), float(st), np.array(im, dtype=self.dtype))
+                for at, st, im in zip(
+                    state["queue_deliver"][i], state["queue_stamp"][i], state["queue_image"][i],
+                    strict=True,
+                )
+                if np.isfinite(st)
+            ]  # fmt: skip
 
     def close(self) -> None:
         for r in self.renderers:

@@ -163,6 +163,9 @@ class PlantRgbCamera(PlantCamera):
         #: more than its render on this machine; the windows overlap, a frame's noise is no
         #: copy of another's unless two offsets are equal)
         self._pool: list[np.ndarray | None] = [None] * plant.envs
+        #: per env, the seed of its pool, drawn at construction (a camera loaded from a state
+        #: dict makes the same pool)
+        self._pool_seed = np.array([int(rng.integers(2**62)) for rng in self.rngs], np.int64)
 
     def true_image(self, env: int = 0) -> np.ndarray:
         """(rows, columns, 3) uint8, the rendered image of env ``env`` now (no sensor model)."""
@@ -178,10 +181,19 @@ class PlantRgbCamera(PlantCamera):
         self.noise.drift(self.drift[e], 1.0 / self.rate, rng)
         size = int(np.prod(self.block.frame_shape))
         if self._pool[e] is None:
-            self._pool[e] = rng.standard_normal(2 * size, dtype=np.float32)
+            pool_rng = np.random.default_rng(int(self._pool_seed[e]))
+            self._pool[e] = pool_rng.standard_normal(2 * size, dtype=np.float32)
         start = int(rng.integers(size))
         normals = self._pool[e][start : start + size].reshape(self.block.frame_shape)
         return self.noise.apply(rendered, self.drift[e], rng, self._blind[e], normals)
+
+    def _fields(self) -> dict:
+        return {**super()._fields(), "drift": self.drift, "pool_seed": self._pool_seed}
+
+    def load_state_dict(self, state, env: int | None = None) -> None:
+        """:meth:`PlantCamera.load_state_dict`, the drift and the pools' seeds with it."""
+        super().load_state_dict(state, env)
+        self._pool = [None] * self.plant.envs  # remade from the seeds loaded
 
     def summary(self, env: int | None = None) -> dict:
         """:meth:`PlantCamera.summary` plus the sensor model."""

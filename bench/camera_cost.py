@@ -166,8 +166,9 @@ def measure(out: Path, frames: int) -> dict:
 
 def _percentiles(ns: np.ndarray) -> dict:
     """p50, p99, p99.9, max and mean (us) and the sample count of ``ns`` (int ns), from the
-    samples themselves (the bench's latency histogram stops at 20 ms: a 640 x 480 colour render
-    on a software renderer takes longer)."""
+    samples themselves (the bench's latency histogram stops at ``BINS`` x ``BIN_NS``,
+    :mod:`sim2real.deploy.core.latency`: a 640 x 480 colour render on a software renderer may
+    take longer)."""
     us = np.asarray(ns, dtype=np.float64) / 1e3
     p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
     return {

@@ -1,10 +1,8 @@
-"""A camera's image input of a policy (a spec's ``images``): a depth camera's
-(:class:`DepthImageBlock`) or a colour camera's (:class:`RgbImageBlock`, JSON ``"kind": "rgb"``):
-which camera, what it delivers, and how a frame becomes the graph's image input.
-
-What the two share (:class:`ImageGeometry`: the camera, the frame's shape, the crop, the resize,
-the frame history with its skip, the rate and the latency, and their checks) is written once;
-each block's ``input_shape`` is the one source of truth of its graph input's layout.
+"""A camera's image input of a policy (a spec's ``images``: which camera, what it delivers, how a
+frame becomes the graph's input): a depth camera's (:class:`DepthImageBlock`) or, JSON ``"kind":
+"rgb"``, a colour camera's (:class:`RgbImageBlock`, whose docstring gives its preprocessing); what
+both share (:class:`ImageGeometry`) is written once, each block's ``input_shape`` the one source
+of truth of its graph input's layout.
 
 A depth frame is (height, width) metres along the camera's optical axis (the z-depth a RealSense
 reports, and MuJoCo's linearised depth buffer); 0 or a non-finite value is an invalid pixel
@@ -30,15 +28,6 @@ the policy was trained with (Extreme Parkour: ``update_interval`` 5 control tick
 Learning's Go1 student trains with 0.25-0.30 s, ``go1_field_distill_config.py``).
 The camera's own geometry (the MJCF ``<camera>``'s pose and ``fovy``) is the robot description's.
 
-An RGB frame is (height, width, 3) uint8 in R, G, B order (a driver delivering OpenCV's BGR flips
-it first). :func:`preprocess` of an :class:`RgbImageBlock`: crop; resize (as above, each channel);
-scale to [0, 1] (``x / 255``, torchvision's ``to_tensor`` and LeRobot's image features);
-``normalisation`` ``mean_std``: ``(x - mean) / std`` per channel (the graph's channel order;
-ImageNet's by default, the statistics of torchvision's ImageNet ResNet-18 weights that LeRobot's
-ACT configuration names as its backbone's ``pretrained_backbone_weights``; a LeRobot policy's own
-dataset statistics, per channel, go in ``mean`` and ``std``); then the graph's
-``channel_order`` (``BGR`` flips the channels) and ``layout``: ``CHW`` gives float32 (batch,
-frames, 3, rows, columns), ``HWC`` (batch, frames, rows, columns, 3).
 """
 
 from __future__ import annotations
@@ -273,9 +262,19 @@ class DepthImageBlock(ImageGeometry):
 
 @dataclass(frozen=True)
 class RgbImageBlock(ImageGeometry):
-    """One colour image input of a policy (module docstring; JSON: an entry of a spec's
-    ``images`` with ``"kind": "rgb"``). Defaults: the cameras of LeRobot's SO-100 examples
-    (640 x 480 at 30 fps; ``LEROBOT_SHAPE``), one frame, CHW RGB in [0, 1].
+    """One colour image input of a policy (JSON: an entry of a spec's ``images`` with ``"kind":
+    "rgb"``). Defaults: the cameras of LeRobot's SO-100 examples (640 x 480 at 30 fps;
+    ``LEROBOT_SHAPE``), one frame, CHW RGB in [0, 1].
+
+    A frame is (height, width, 3) uint8 in R, G, B order (a driver delivering OpenCV's BGR flips
+    it first). :func:`preprocess`: crop; resize (as a depth block's, each channel); scale to
+    [0, 1] (``x / 255``, torchvision's ``to_tensor`` and LeRobot's image features);
+    ``normalisation`` ``mean_std``: ``(x - mean) / std`` per channel (the graph's channel order;
+    ImageNet's by default, the statistics of torchvision's ImageNet ResNet-18 weights that
+    LeRobot's ACT configuration names as its backbone's ``pretrained_backbone_weights``; a LeRobot
+    policy's own dataset statistics, per channel, go in ``mean`` and ``std``); then the graph's
+    ``channel_order`` (``BGR`` flips the channels) and ``layout``: ``CHW`` gives float32 (batch,
+    frames, 3, rows, columns), ``HWC`` (batch, frames, rows, columns, 3).
 
     Attributes:
         input: The graph's input name: float32 (batch, frames, 3, rows, columns) with ``CHW``,

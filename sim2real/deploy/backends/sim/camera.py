@@ -1,13 +1,6 @@
 """A simulated depth camera on each env of a plant (:class:`PlantDepthCamera`): the MJCF
 ``<camera>`` rendered at its own rate, with a D435's depth model and the session's faults.
 
-Timing. Frame ``k`` is captured at ``k / rate`` s (the first control tick at or after it renders
-the scene: a 30 Hz camera beside a 200 Hz control loop captures every 6th or 7th tick) and is
-delivered ``latency`` s later (plus ``spike_latency`` when a latency spike hits it). Each tick the
-frame carries the newest delivered image (``frame.depth_image`` (envs, rows, columns) m) and its
-capture time (``frame.depth_stamp`` (envs,) s; NaN: nothing delivered yet); the runtime's camera
-stage (:mod:`sim2real.deploy.runtime.camera`) sees its age.
-
 Depth model (:class:`DepthNoise`; Intel RealSense D400 Series datasheet 337029, D435: depth RMS
 error <= 2 % at 2 m, depth unit 1 mm, range up to 10 m; minimum depth 0.11 m, Intel's figure for
 the D435 on its forum, the datasheet's min-Z table giving it per resolution): the true z-depth
@@ -19,21 +12,10 @@ writes it); so is a pixel at a depth edge (a 4-neighbour more than ``edge_jump``
 depth away: the stereo matcher's holes beside a foreground object, our choice 0.1); the rest is
 rounded to ``depth_unit``.
 
-Faults (:class:`CameraFaults`, drawn per frame from the generator seeded by ``seed``): a frame
-is lost with probability ``drop``; with probability ``spike`` it arrives ``spike_latency`` s
-later; a frozen spell starts at a frame with probability ``freeze`` and lasts ``freeze_frames``
-frames, each delivered on time with a fresh stamp and the image of the frame before it (a
-driver stuck on its buffer: the runtime sees a repeated image, which is not fresh). Two faults
-hold for the whole session: ``occlusion``, the fraction of the image's columns, from its left
-edge, that a covered or smudged lens blinds (they read 0, no depth); ``extrinsic``, the camera
-knocked on its mount, turned by (rx, ry, rz) rad about its own x (right), y (up) and z (back)
-axes in that order (the MJCF pose is the calibrated one the policy trained with); ``lighting``,
-the scene's light scaled (a colour camera's; depth ignores it). Every env may have faults of its
-own and a generator of its own (a soak batch's sessions, :mod:`sim2real.eval.soak.camera_faults`).
-
-The timing and the faults are :class:`sim2real.deploy.backends.sim.plant_camera.PlantCamera`'s,
-shared with the colour camera (:mod:`sim2real.deploy.backends.sim.rgb_camera`);
-:func:`attach_depth_camera` attaches the one a policy's image block asks for.
+The frame's timing and the faults (a covered lens reads 0, no depth; a lighting change is a colour
+camera's) are :mod:`sim2real.deploy.backends.sim.plant_camera`'s, shared with the colour camera
+(:mod:`sim2real.deploy.backends.sim.rgb_camera`); :func:`attach_depth_camera` attaches the one a
+policy's image block asks for. The depth frame is ``frame.depth_image`` (envs, rows, columns) m.
 """
 
 from __future__ import annotations

@@ -1,9 +1,24 @@
-"""What a simulated camera of a plant is, whatever it senses (:class:`PlantCamera`): the MJCF
-``<camera>`` rendered at its own rate and delivered after its latency, with the session's camera
-faults (:class:`CameraFaults`, drawn from :class:`CameraFaultRanges`). The depth camera
-(:mod:`sim2real.deploy.backends.sim.camera`) and the colour camera
-(:mod:`sim2real.deploy.backends.sim.rgb_camera`) make each frame's image; the timing and the
-faults are described in :mod:`sim2real.deploy.backends.sim.camera`'s docstring.
+"""What a simulated camera of a plant is, whatever it senses (:class:`PlantCamera`; the depth
+camera :mod:`sim2real.deploy.backends.sim.camera` and the colour camera
+:mod:`sim2real.deploy.backends.sim.rgb_camera` make each frame's image).
+
+Timing. Frame ``k`` is captured at ``k / rate`` s (the first control tick at or after it renders
+the scene: a 30 Hz camera beside a 200 Hz control loop captures every 6th or 7th tick) and is
+delivered ``latency`` s later (plus ``spike_latency`` when a latency spike hits it). Each tick the
+frame carries the newest delivered image and its capture time (NaN: nothing delivered yet); the
+runtime's camera stage (:mod:`sim2real.deploy.runtime.camera`) sees its age.
+
+Faults (:class:`CameraFaults`, drawn from :class:`CameraFaultRanges`; per frame from the env's
+generator): a frame is lost with probability ``drop``; with probability ``spike`` it arrives
+``spike_latency`` s later; a frozen spell starts at a frame with probability ``freeze`` and lasts
+``freeze_frames`` frames, each delivered on time with a fresh stamp and the image of the frame
+before it (a driver stuck on its buffer: the runtime sees a repeated image, which is not fresh).
+For the whole session: ``occlusion``, the fraction of the image's columns, from its left edge,
+that a covered or smudged lens blinds; ``extrinsic``, the camera knocked on its mount, turned by
+(rx, ry, rz) rad about its own x (right), y (up) and z (back) axes in that order (the MuJoCo
+camera's pose in the renderer's copy of the model; the MJCF pose is the calibrated one the policy
+trained with); ``lighting``, the scene's light scaled (a colour camera's). Every env may have
+faults and a generator of its own (a soak batch's sessions, :mod:`sim2real.eval.soak.camera_faults`).
 """
 
 from __future__ import annotations

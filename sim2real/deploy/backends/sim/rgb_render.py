@@ -3,8 +3,8 @@
 The drawing (OpenGL context by ``MUJOCO_GL``, EGL where unset on a headless Linux machine; triton
 imported first) is :class:`sim2real.deploy.backends.sim.depth_render.OffscreenCamera`'s. The
 colour renderer draws without shadows and reflections unless asked (``shadows``): on Mesa's
-software renderer MuJoCo's 4096 x 4096 shadow map cost about 230 ms a frame, ten times the
-frame itself (``bench.camera_cost``, docs/cameras.md); without multisampling (its cost; a
+software renderer MuJoCo's 4096 x 4096 shadow map cost many times the frame itself
+(docs/cameras.md); without multisampling (its cost; a
 camera's own anti-aliasing is its lens's blur, not modelled). The skybox stays.
 A lighting change (:meth:`RgbRenderer.set_lighting`) scales the headlight's and every light's
 ambient and diffuse colour in the renderer's copy of the model.

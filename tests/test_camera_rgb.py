@@ -197,6 +197,8 @@ def test_the_runtime_feeds_a_two_input_policy_colour_frames_and_a_frozen_camera_
             assert followed["frozen"] >= 3 and followed["dropped"] == 0
             assert followed["last"]["fault"] == "frozen"
             assert "in the 1 s before: " in verdict and " frames frozen, 0 dropped" in verdict
+            # each frozen frame counted once, however many ticks it stays the newest
+            assert camera.frozen[0] - 1 <= rt.cameras.repeated[0] <= camera.frozen[0]
 
 
 def test_policy_export_inspect_shows_the_rgb_block(arm3, tmp_path, capsys):

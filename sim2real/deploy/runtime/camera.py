@@ -72,6 +72,9 @@ class CameraInput:
         self._raw = np.full((envs, *block.frame_shape), np.nan, np.float32)
         self.image = np.zeros((envs, *block.input_shape), np.float32)
         self.stamp = np.full(envs, -np.inf)
+        #: the newest stamp looked at, fresh or repeated (a repeated frame counts once, not once
+        #: per tick it stays in the frame)
+        self._looked = np.full(envs, -np.inf)
         self._start = np.nan  # the first tick's time: a camera's first frame is due by then
         self.time_since_fresh = np.full(envs, np.inf)
         self.stale = np.zeros(envs, dtype=bool)
@@ -95,8 +98,9 @@ class CameraInput:
         if depth is not None:
             depth = check_frames(depth, self.block, self.envs, f"frame.{self.image_field}")
             stamp = np.asarray(getattr(frame, self.stamp_field), dtype=float)
-            newer = stamp > self.stamp  # NaN: nothing delivered
+            newer = stamp > self._looked  # NaN: nothing delivered
             for e in np.flatnonzero(newer):
+                self._looked[e] = stamp[e]
                 if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
                     self.repeated[e] += 1
                     continue
@@ -166,6 +170,7 @@ class CameraInput:
             "raw": self._raw,
             "image": self.image,
             "stamp": self.stamp,
+            "looked": self._looked,
             "taken": self.taken,
             "repeated": self.repeated,
             "oldest": self.oldest,

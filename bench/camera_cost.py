@@ -1,8 +1,11 @@
-"""What a depth camera costs and how wrong it is: the Go2 with a head depth camera (the way a user
+"""What a camera costs and how wrong it is: the Go2 with a head camera (the way a user
 adds one: a ``<camera>`` on the base in a copy of the robot's folder, :func:`head_camera_robot`),
-MuJoCo's offscreen render per frame at Extreme Parkour's 60 x 106 and at 240 x 424, the depth
-model's error on a flat target 1 m and 2 m ahead against the D435 datasheet's bound (RMS <= 2 % at 2 m),
-and the image preprocessing per frame.
+MuJoCo's offscreen depth render per frame at Extreme Parkour's 60 x 106 and at 240 x 424, its
+colour render at 96 x 128 and at LeRobot's 480 x 640 (with shadows, as
+:class:`~sim2real.deploy.backends.sim.rgb_render.RgbRenderer` draws it) and the colour sensor
+model (OV5647 noise, drift, uint8) per frame, the depth model's error on a flat target 1 m and
+2 m ahead against the D435 datasheet's bound (RMS <= 2 % at 2 m), and the image preprocessing
+per frame (depth 60 x 106 -> 58 x 87; RGB 480 x 640 -> 96 x 128 CHW).
 
 Usage::
 
@@ -68,6 +71,29 @@ def render_costs(robot, block, frames: int) -> np.ndarray:
     return np.asarray(costs, dtype=np.int64)
 
 
+def rgb_costs(robot, block, frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """(frames,) ns each: one colour render of the head camera (no sensor model), and the
+    sensor model as a frame meets it (:meth:`~sim2real.deploy.backends.sim.rgb_camera.
+    PlantRgbCamera.sensor`: OV5647 noise, drift, uint8)."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.backends.sim.rgb_camera import PlantRgbCamera
+
+    plant = SimBackend(robot, "position", envs=1)
+    camera = PlantRgbCamera(plant, block)
+    image = camera.true_image().copy()  # warm
+    camera.sensor(0, image, camera.rng)  # its pool of normal draws made
+    render, sensor = [], []
+    for _ in range(frames):
+        t0 = time.perf_counter_ns()
+        camera.true_image()
+        t1 = time.perf_counter_ns()
+        camera.sensor(0, image, camera.rng)
+        sensor.append(time.perf_counter_ns() - t1)
+        render.append(t1 - t0)
+    camera.close()
+    return np.asarray(render, dtype=np.int64), np.asarray(sensor, dtype=np.int64)
+
+
 def wall_errors(out: Path, frames: int) -> dict[float, dict]:
     """The D435 model's depth error on a flat target 1 m and 2 m ahead of the head camera."""
     from sim2real.deploy.backends.sim.camera import PlantDepthCamera, depth_error
@@ -90,28 +116,40 @@ def measure(out: Path, frames: int) -> dict:
     """The ``camera`` entry of results.json: ``{"frames", "rows": [{what, p50_us, p99_us,
     p99.9_us, max_us, mean_us, samples}], "errors": [{at_m, pixels, rms_mm, rms_percent,
     datasheet_percent, invalid_percent}]}``; ``{"skipped": why}`` without an OpenGL context."""
-    from bench.common import histogram, summary
-    from sim2real.deploy.spec.camera import DepthImageBlock, preprocess
+    from sim2real.deploy.spec.camera import DepthImageBlock, RgbImageBlock, preprocess
     from sim2real.robots import load_robot
 
     robot = load_robot(head_camera_robot(out / "go2_head"))
     small = DepthImageBlock(camera="head_depth")
     large = DepthImageBlock(camera="head_depth", shape=(240, 424), crop=(0, 0, 0, 0))
+    rgb_small = RgbImageBlock(camera="head_depth", shape=(96, 128), resize=(96, 128))
+    rgb_large = RgbImageBlock(camera="head_depth", resize=(96, 128))  # LeRobot's 480 x 640
     try:
         timings = {
             "render 60 x 106 (Extreme Parkour)": render_costs(robot, small, frames),
             "render 240 x 424": render_costs(robot, large, frames),
         }
+        for name, block in (("96 x 128", rgb_small), ("480 x 640 (LeRobot)", rgb_large)):
+            render, sensor = rgb_costs(robot, block, frames)
+            timings[f"render RGB {name}"] = render
+            timings[f"RGB sensor model {name.split(' (')[0]}"] = sensor
     except RuntimeError as exc:  # no OpenGL context: the message names MUJOCO_GL
         return {"skipped": str(exc)}
-    frame = np.full((1, *small.shape), 1.5, np.float32)
-    costs = []
-    for _ in range(frames):
-        t0 = time.perf_counter_ns()
-        preprocess(frame, small)
-        costs.append(time.perf_counter_ns() - t0)
-    timings["preprocess 60 x 106 -> 58 x 87"] = np.asarray(costs, dtype=np.int64)
-    rows = [{"what": k, **summary(histogram(v))} for k, v in timings.items()]
+    for name, block, frame in (
+        ("preprocess 60 x 106 -> 58 x 87", small, np.full((1, *small.shape), 1.5, np.float32)),
+        (
+            "preprocess RGB 480 x 640 -> 96 x 128",
+            rgb_large,
+            np.full((1, *rgb_large.frame_shape), 128, np.uint8),
+        ),
+    ):
+        costs = []
+        for _ in range(frames):
+            t0 = time.perf_counter_ns()
+            preprocess(frame, block)
+            costs.append(time.perf_counter_ns() - t0)
+        timings[name] = np.asarray(costs, dtype=np.int64)
+    rows = [{"what": k, **_percentiles(v)} for k, v in timings.items()]
     errors = [
         {
             "at_m": at,
@@ -126,11 +164,28 @@ def measure(out: Path, frames: int) -> dict:
     return {"frames": frames, "rows": rows, "errors": errors}
 
 
+def _percentiles(ns: np.ndarray) -> dict:
+    """p50, p99, p99.9, max and mean (us) and the sample count of ``ns`` (int ns), from the
+    samples themselves (the bench's latency histogram stops at ``BINS`` x ``BIN_NS``,
+    :mod:`sim2real.deploy.core.latency`: a 640 x 480 colour render on a software renderer may
+    take longer)."""
+    us = np.asarray(ns, dtype=np.float64) / 1e3
+    p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
+    return {
+        "p50_us": float(p50),
+        "p99_us": float(p99),
+        "p99.9_us": float(p999),
+        "max_us": float(us.max()),
+        "mean_us": float(us.mean()),
+        "samples": int(us.size),
+    }
+
+
 def render_lines(sec: dict, add) -> None:
     """The ``camera`` section of the bench's table (:func:`bench.render.render`)."""
     add(
-        f"== camera: the Go2's head depth camera, MuJoCo offscreen (1 env), {sec['frames']} "
-        "frames; the D435 model's error on a wall (datasheet: RMS <= 2 % at 2 m)"
+        f"== camera: the Go2's head camera, MuJoCo offscreen depth and RGB (1 env), "
+        f"{sec['frames']} frames; the D435 model's error on a wall (datasheet: RMS <= 2 % at 2 m)"
     )
     for r in sec["rows"]:
         add(f"{r['what']:36} p50 {r['p50_us']:>9.1f} us  p99 {r['p99_us']:>9.1f} us")

@@ -180,21 +180,21 @@ def test_the_camera_stage_stacks_frames_skip_apart_and_takes_a_repeated_image_fo
 
 # ---------------------------------------------------------------------- rendered
 def depth_policy(robot, tmp_path, block=TINY, stored=None) -> OnnxPolicy:
-    """A two-input policy of ``robot``'s default spec plus ``block``: every action is the mean
-    of the depth image input (batch, frames, rows, columns) over ten, whatever the vector says;
-    its spec in the file names ``stored`` (default ``block``)."""
+    """A two-input policy of ``robot``'s default spec plus ``block`` (a depth or an RGB block):
+    every action is the mean of the image input (batch, *block.input_shape) over ten, whatever
+    the vector says; its spec in the file names ``stored`` (default ``block``)."""
     spec = replace(PolicySpec.for_robot(robot), images=(block,))
     d, n = spec.obs_dim, spec.act_dim
     nodes = [
         helper.make_node("MatMul", ["obs", "w"], ["zero"]),
-        helper.make_node("ReduceMean", ["depth", "axes"], ["mean"], keepdims=0),
+        helper.make_node("ReduceMean", [block.input, "axes"], ["mean"], keepdims=0),
         helper.make_node("Mul", ["mean", "tenth"], ["small"]),
         helper.make_node("Unsqueeze", ["small", "one"], ["column"]),
         helper.make_node("Add", ["zero", "column"], ["action"]),
     ]
     weights = {
         "w": np.zeros((d, n), np.float32),
-        "axes": np.array([1, 2, 3], np.int64),
+        "axes": np.arange(1, 1 + len(block.input_shape), dtype=np.int64),
         "one": np.array([1], np.int64),
         "tenth": np.array(0.1, np.float32),
     }
@@ -204,7 +204,7 @@ def depth_policy(robot, tmp_path, block=TINY, stored=None) -> OnnxPolicy:
         [
             helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d]),
             helper.make_tensor_value_info(
-                "depth", TensorProto.FLOAT, ["batch", *block.input_shape]
+                block.input, TensorProto.FLOAT, ["batch", *block.input_shape]
             ),
         ],
         [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", n])],
@@ -214,7 +214,7 @@ def depth_policy(robot, tmp_path, block=TINY, stored=None) -> OnnxPolicy:
     model.ir_version = 9
     stored = spec if stored is None else replace(spec, images=(stored,))
     helper.set_model_props(model, {"policy_spec": stored.to_json()})
-    path = tmp_path / "depth.onnx"
+    path = tmp_path / f"{block.input}.onnx"
     path.write_bytes(model.SerializeToString())
     return OnnxPolicy(path, robot)
 
@@ -307,7 +307,12 @@ def test_the_bench_item_times_the_render_and_states_the_error_at_1_m_and_2_m(tmp
     assert [r["what"] for r in sec["rows"]] == [
         "render 60 x 106 (Extreme Parkour)",
         "render 240 x 424",
+        "render RGB 96 x 128",
+        "RGB sensor model 96 x 128",
+        "render RGB 480 x 640 (LeRobot)",
+        "RGB sensor model 480 x 640",
         "preprocess 60 x 106 -> 58 x 87",
+        "preprocess RGB 480 x 640 -> 96 x 128",
     ]
     assert all(r["samples"] == 5 and r["p50_us"] > 0 for r in sec["rows"])
     errors = {e["at_m"]: e for e in sec["errors"]}

@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 from sim2real.deploy.backends.camera.convert import FrameTarget, target_for, to_target
+from sim2real.deploy.backends.camera.feed import CameraFeed
 from sim2real.deploy.backends.camera.options import parse_camera_source
 from sim2real.deploy.backends.camera.realsense_source import depth_metres
-from sim2real.deploy.spec.camera import CameraError
+from sim2real.deploy.spec.camera import CameraError, RgbImageBlock
 from tests.test_camera import TINY, depth_policy
 from tests.test_ros2 import ros_domain  # noqa: F401 - the fixture
 
@@ -63,7 +64,16 @@ def test_colour_is_put_in_the_blocks_channel_order():
     as_bgr = to_target(rgb, "rgb8", FrameTarget((12, 16), "bgr", "front"), "t")
     assert as_bgr[0, 0].tolist() == [200, 0, 0]
     assert target_for(TINY) == FrameTarget((12, 16), "depth", "head_depth")
-    assert target_for(NS(shape=(4, 5), camera="wrist", channel_order="rgb")).kind == "rgb"
+    # a colour block's frames reach the runtime in R, G, B order, whatever order its graph reads
+    # (the camera stage's preprocessing flips them), under the frame's colour fields
+    wrist = RgbImageBlock(camera="wrist", shape=(4, 5), channel_order="BGR")
+    assert target_for(wrist) == FrameTarget((4, 5), "rgb", "wrist")
+    feed = CameraFeed(target_for(wrist), "t", monotonic=lambda: 1.0)
+    feed.put(np.full((4, 5, 3), 7, np.uint8), "rgb8", captured=0.9)
+    frame = NS(time=np.array([2.0]))
+    feed.fill(frame)
+    assert frame.rgb_image.shape == (1, 4, 5, 3) and frame.rgb_stamp[0] == pytest.approx(1.9)
+    assert not hasattr(frame, "depth_image")
 
 
 @pytest.mark.parametrize(
@@ -373,7 +383,8 @@ def published(sub, msgs, pub, fill_frame):
             time.sleep(0.05)
         assert sub.feed.received > before, "no frame arrived"
         take(sub, fill_frame)
-        got.append((fill_frame.depth_image[0].copy(), float(fill_frame.depth_stamp[0])))
+        image, stamp = sub.feed.fields
+        got.append((getattr(fill_frame, image)[0].copy(), float(getattr(fill_frame, stamp)[0])))
     return got
 
 

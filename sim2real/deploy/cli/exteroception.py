@@ -127,8 +127,9 @@ def close_camera(backend) -> None:
 
 
 def attach_plant_camera(args, backend, spec):
-    """A policy with a depth image input on the plant: its MJCF camera rendered at
-    ``--camera-rate`` with ``--camera-latency``, the D435 depth model and, with
+    """A policy with a depth or RGB image input on the plant: its MJCF camera rendered at
+    ``--camera-rate`` with ``--camera-latency``, the D435 depth model (or the OV5647 colour
+    model, :mod:`sim2real.deploy.backends.sim.rgb_camera`) and, with
     ``--camera-faults drawn``, faults drawn from ``--seed``
     (:mod:`sim2real.deploy.backends.sim.camera`), said on stderr.
 
@@ -156,7 +157,8 @@ def attach_plant_camera(args, backend, spec):
         raise ValueError(str(exc)) from None
     if camera is not None:
         print(
-            f"deploy-run: depth camera '{camera.block.camera}' {camera.block.shape[0]}x"
+            f"deploy-run: {'colour' if camera.block.kind == 'rgb' else 'depth'} camera "
+            f"'{camera.block.camera}' {camera.block.shape[0]}x"
             f"{camera.block.shape[1]} at {camera.rate:g} Hz, latency {camera.latency:g} s, "
             f"{camera.noise.to_dict()}, faults {camera.faults.to_dict()}",
             file=sys.stderr,

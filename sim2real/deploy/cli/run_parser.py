@@ -272,7 +272,8 @@ def parse_camera_source_option(args) -> None:
 
 def _add_camera_options(p: argparse.ArgumentParser) -> None:
     """Add a camera's options: on hardware (any backend) the source of its frames; with
-    ``--backend sim`` and no source, the plant camera's rate, latency and faults."""
+    ``--backend sim`` and no source, the plant camera's rate, latency and faults (depth or
+    colour)."""
     p.add_argument(
         "--camera-source",
         action="append",
@@ -289,7 +290,7 @@ def _add_camera_options(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="HZ",
-        help="--backend sim, a policy with a depth image input: the camera's frame rate "
+        help="--backend sim, a policy with an image input (depth or RGB): the camera's frame rate "
         "(default the rate its spec's images entry names; sim2real/deploy/backends/sim/camera.py)",
     )
     p.add_argument(
@@ -305,7 +306,8 @@ def _add_camera_options(p: argparse.ArgumentParser) -> None:
         choices=("none", "drawn"),
         default="none",
         help="--backend sim: 'drawn', the run's camera faults (dropped, late and frozen frames, "
-        "a covered lens, a knocked mount) drawn from --seed (CameraFaultRanges); default none",
+        "a covered lens, a knocked mount, a lighting change) drawn from --seed "
+        "(CameraFaultRanges); default none",
     )
 
 

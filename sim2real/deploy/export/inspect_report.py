@@ -55,11 +55,30 @@ def spec_summary(text: str, where: str) -> dict[str, Any]:
 
 def image_text(block) -> str:
     """One line of a spec's image block (its JSON: a :class:`~sim2real.deploy.spec.camera.
-    DepthImageBlock`): input, camera, frame, crop, resize, clip, normalisation, history, rate."""
-    from sim2real.deploy.spec.camera import DepthImageBlock
+    DepthImageBlock` or, ``"kind": "rgb"``, an :class:`~sim2real.deploy.spec.camera.
+    RgbImageBlock`): input, camera, frame, crop, resize, clip or colour layout, normalisation,
+    history, rate."""
+    from sim2real.deploy.spec.camera import DepthImageBlock, RgbImageBlock
 
     if not isinstance(block, Mapping):
         return f"{block!r} (not a table)"
+    if block.get("kind") == "rgb":
+        b = {**RgbImageBlock().to_dict(), **block}
+        try:
+            norm = "x/255" + (
+                f", mean {list(b['mean'])} std {list(b['std'])}"
+                if b["normalisation"] == "mean_std"
+                else ""
+            )
+            return (
+                f"{b['input']} <- colour camera '{b['camera']}' {b['shape'][0]}x{b['shape'][1]} "
+                f"at {b['rate']:g} Hz, crop {list(b['crop'])} (top, bottom, left, right), resize "
+                f"{b['resize'][0]}x{b['resize'][1]} {b['interpolation']}, {b['channel_order']} "
+                f"{b['layout']} {norm}, {b['frames']} frames {b['skip']} apart, latency "
+                f"{b['latency']:g} s"
+            )
+        except (TypeError, ValueError, IndexError, KeyError):
+            return json.dumps(block)
     b = {**DepthImageBlock().to_dict(), **block}
     try:
         return (

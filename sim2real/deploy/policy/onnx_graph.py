@@ -110,8 +110,9 @@ def check_graph(
             "'<name>_in' with an output '<name>_out' of the same shape [layers, batch, "
             "hidden] (batch on axis 1); if it takes a constant (a mask, a dummy), add "
             '"constant_inputs": {"' + unknown[0].name + '": VALUE} to the --spec file; if it '
-            'is a depth camera\'s image [batch, frames, rows, columns], an "images" entry '
-            "naming it (docs/cameras.md); or export the policy with policy-export"
+            "is a depth camera's image [batch, frames, rows, columns] or a colour camera's "
+            '[batch, frames, 3, rows, columns], an "images" entry naming it (docs/cameras.md); '
+            "or export the policy with policy-export"
         )
     constant_specs = {
         name: _constant_shape(path, vi, spec.constant_inputs.get(name, 0.0))
@@ -137,8 +138,10 @@ def check_graph(
 
 
 def _check_images(path: Path, spec: PolicySpec, inputs) -> None:
-    """Each of the spec's image blocks is a float32 graph input (batch, frames, rows, columns)
-    of its shape (``PolicyLoadError`` naming the input, its shape and the spec's where not)."""
+    """Each of the spec's image blocks is a float32 graph input of its shape (``input_shape``
+    after the batch: a depth block's (frames, rows, columns), an RGB block's (frames, 3, rows,
+    columns) or (frames, rows, columns, 3)) (``PolicyLoadError`` naming the input, its shape
+    and the spec's where not)."""
     by_name = {i.name: i for i in inputs}
     for k, block in enumerate(spec.images):
         vi = by_name.get(block.input)
@@ -151,13 +154,13 @@ def _check_images(path: Path, spec: PolicySpec, inputs) -> None:
         fixed = [(d, w) for d, w in zip(dims[1:], block.input_shape, strict=False)]
         if (
             vi.type.tensor_type.elem_type != TensorProto.FLOAT
-            or len(dims) != 4
+            or len(dims) != 1 + len(block.input_shape)
             or any(isinstance(d, int) and d != want for d, want in fixed)
         ):
             raise PolicyLoadError(
                 f"{path}: graph input '{block.input}' is "
                 f"{TensorProto.DataType.Name(vi.type.tensor_type.elem_type).lower()} {dims}; the "
-                f"spec's images[{k}] expects float [batch, frames, rows, columns] = "
+                f"spec's images[{k}] expects float {block.layout_names} = "
                 f"[batch, {', '.join(str(d) for d in block.input_shape)}]"
             )
 

@@ -9,9 +9,11 @@ outputs or recurrent state the spec does not describe (:mod:`sim2real.deploy.pol
 action that is not finite for the zero observation or, for a foreign file (an export's parity gate
 already probed ours), for every entry at -1, at +1 and 29 uniform draws in [-1, 1].
 
-A spec's image inputs (``images``: a depth camera's frames, :mod:`sim2real.deploy.spec.camera`)
-are bound arrays, :attr:`OnnxPolicy.images` (float32 ``(envs, frames, rows, columns)``), that the
-runtime's camera stage writes before each call (zeros until then).
+A spec's image inputs (``images``: a depth or colour camera's frames,
+:mod:`sim2real.deploy.spec.camera`) are bound arrays, :attr:`OnnxPolicy.images` (float32
+``(envs, *block.input_shape)``: depth ``(envs, frames, rows, columns)``, RGB ``(envs, frames, 3,
+rows, columns)`` or ``(envs, frames, rows, columns, 3)``), that the runtime's camera stage writes
+before each call (zeros until then; :meth:`OnnxPolicy.bind_batch` binds them for its envs).
 
 Observations are float32 ``(envs, obs_dim)``, actions float32 ``(envs, act_dim)`` in the spec's
 ``joint_names`` order (a spec's ``action.joints`` reorders the graph's outputs). A recurrent
@@ -203,7 +205,7 @@ class OnnxPolicy:
         self._input, self._seen = self._obs, None
         self._binding.bind_ortvalue_output(self.output_name, self._action_value)
         self._constant_values = []  # keep the OrtValues alive with the binding
-        #: the image inputs (spec ``images``), float32 (batch, frames, rows, columns), bound:
+        #: the image inputs (spec ``images``), float32 (batch, *block.input_shape), bound:
         #: the runtime's camera stage writes each tick's image into them in place
         self.images = {
             b.input: np.zeros((batch, *b.input_shape), np.float32) for b in self.spec.images
@@ -275,6 +277,13 @@ class OnnxPolicy:
             np.copyto(self._obs, obs, casting="same_kind")
         self._run()
         return self._action if self._finish is None else self._finish()
+
+    def bind_batch(self, batch: int) -> None:
+        """Bind the buffers for ``batch`` envs now, as the first call of that batch would (a
+        no-op when bound for it): the runtime's camera stage writes the image inputs
+        (:attr:`images`) before the first call. Raises ValueError: a fixed batch size differs."""
+        if batch != self._batch:
+            self._bind(batch)
 
     def _bind_input(self, array: np.ndarray) -> None:
         """Bind ``array`` (float32 (batch, obs_dim), C-contiguous) as the graph's input."""

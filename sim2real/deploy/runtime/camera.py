@@ -1,19 +1,24 @@
-"""The runtime's camera input (:class:`CameraInput`): the depth frames a policy's image block
-reads, the last one delivered and its age, the frame history the graph takes, and a camera
+"""The runtime's camera input (:class:`CameraInput`): the depth or colour frames a policy's image
+block reads, the last one delivered and its age, the frame history the graph takes, and a camera
 judged stale like any sensor.
 
 Each tick its ``source`` (a simulated plant's camera,
 :class:`sim2real.deploy.backends.sim.camera.PlantDepthCamera`; on hardware a driver writing the
 frame) leaves the newest delivered frame in ``frame.depth_image`` ((envs, rows, columns) m) and
-its capture time in ``frame.depth_stamp`` ((envs,) s). A frame is fresh when its stamp is newer
+its capture time in ``frame.depth_stamp`` ((envs,) s); for an RGB block
+(:class:`sim2real.deploy.spec.camera.RgbImageBlock`) ``frame.rgb_image`` ((envs, rows, columns,
+3) uint8 R, G, B; a driver delivering OpenCV's BGR flips it first) and ``frame.rgb_stamp``
+(``FRAME_FIELDS``; the plant's :class:`sim2real.deploy.backends.sim.rgb_camera.PlantRgbCamera`).
+A frame is fresh when its stamp is newer
 than the last one taken and its image is not the last one's again (a frozen driver repeats its
-buffer with new stamps; a real depth image never repeats bit for bit, its noise differs; a frame
-without one valid pixel, a view of open sky, may, and is fresh). A fresh
-frame is checked (:func:`sim2real.deploy.spec.camera.check_frames`: a non-numeric frame or one of
-another shape is refused in one line), preprocessed (:func:`sim2real.deploy.spec.camera.
-preprocess`) and pushed into the history; the graph's image input ((envs, frames, rows, columns),
-oldest first, ``skip`` delivered frames apart) is written in place into the array the policy
-binds (``policy.images[block.input]``). Until an env has the history's span of frames, its oldest
+buffer with new stamps; a real image never repeats bit for bit, its noise differs; a frame
+without one valid (non-zero) pixel, a view of open sky or a black image, may, and is fresh).
+A fresh frame is checked (:func:`sim2real.deploy.spec.camera.check_frames`: a non-numeric frame
+or one of another shape is refused in one line), preprocessed
+(:func:`sim2real.deploy.spec.camera.preprocess`) and pushed into the history; the graph's image
+input ((envs, frames, rows, columns) of depth, its layout the block's ``input_shape``; oldest
+first, ``skip`` delivered frames apart) is written in place into the array the policy binds
+(``policy.images[block.input]``). Until an env has the history's span of frames, its oldest
 entries repeat its first frame (Extreme Parkour fills its ``depth_buffer`` with copies of the
 first image at an episode's start).
 
@@ -30,23 +35,25 @@ import numpy as np
 
 from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.runtime.height_map import height_map_stage
-from sim2real.deploy.spec.camera import DepthImageBlock, check_frames, preprocess
+from sim2real.deploy.spec.camera import DepthImageBlock, RgbImageBlock, check_frames, preprocess
 
 #: Frame periods past the robot's stale limit before a camera is stale (module docstring).
 STALE_FRAMES = 3
+#: The frame's (image, stamp) fields of each block kind (module docstring).
+FRAME_FIELDS = {"depth": ("depth_image", "depth_stamp"), "rgb": ("rgb_image", "rgb_stamp")}
 
 
 class CameraInput:
-    """The depth image input of ``envs`` robots (module docstring).
+    """The depth or colour image input of ``envs`` robots (module docstring).
 
     Args:
-        block: The policy's image block. envs: Robots.
+        block: The policy's image block (depth or RGB). envs: Robots.
         stale_limit: s, a camera whose last fresh frame is older stops the robot.
-        source: ``fill(frame)`` writing the frame's depth image each tick, or None (the backend
+        source: ``fill(frame)`` writing the frame's image each tick, or None (the backend
             writes the frame itself).
 
     Attributes:
-        image: float32 (envs, frames, rows, columns), the graph's image input of the last tick.
+        image: float32 (envs, *block.input_shape), the graph's image input of the last tick.
         stamp: (envs,) s, the last fresh frame's capture time (-inf: none yet).
         time_since_fresh: (envs,) s, since that frame (none yet: since the first tick).
         stale: (envs,) bool, this tick's.
@@ -54,13 +61,20 @@ class CameraInput:
             with a new stamp (frozen). oldest: (envs,) s, the largest age after the first frame.
     """
 
-    def __init__(self, block: DepthImageBlock, envs: int, stale_limit: float, source=None):
+    def __init__(
+        self, block: DepthImageBlock | RgbImageBlock, envs: int, stale_limit: float, source=None
+    ):
         self.block, self.envs, self.stale_limit, self.source = block, envs, stale_limit, source
+        self.image_field, self.stamp_field = FRAME_FIELDS[block.kind]
         span = (block.frames - 1) * block.skip + 1
-        self._ring = np.zeros((envs, span, *block.resize), np.float32)
-        self._raw = np.full((envs, *block.shape), np.nan, np.float32)  # the last raw frame taken
+        self._ring = np.zeros((envs, span, *block.input_shape[1:]), np.float32)
+        # the last raw frame taken (float: NaN is none)
+        self._raw = np.full((envs, *block.frame_shape), np.nan, np.float32)
         self.image = np.zeros((envs, *block.input_shape), np.float32)
         self.stamp = np.full(envs, -np.inf)
+        #: the newest stamp looked at, fresh or repeated (a repeated frame counts once, not once
+        #: per tick it stays in the frame)
+        self._looked = np.full(envs, -np.inf)
         self._start = np.nan  # the first tick's time: a camera's first frame is due by then
         self.time_since_fresh = np.full(envs, np.inf)
         self.stale = np.zeros(envs, dtype=bool)
@@ -71,7 +85,7 @@ class CameraInput:
         self._back = block.skip * np.arange(block.frames - 1, -1, -1)
 
     def update(self, frame, images: np.ndarray | None = None) -> np.ndarray:
-        """Take the frame's depth image where it is fresh, write the graph's image input into
+        """Take the frame's image (``image_field``) where it is fresh, write the graph's image input into
         :attr:`image` and into ``images`` (the policy's bound input) when given; returns
         :attr:`stale`.
 
@@ -80,12 +94,13 @@ class CameraInput:
         """
         if self.source is not None:
             self.source.fill(frame)
-        depth = getattr(frame, "depth_image", None)
+        depth = getattr(frame, self.image_field, None)
         if depth is not None:
-            depth = check_frames(depth, self.block, self.envs, "frame.depth_image")
-            stamp = np.asarray(frame.depth_stamp, dtype=float)
-            newer = stamp > self.stamp  # NaN: nothing delivered
+            depth = check_frames(depth, self.block, self.envs, f"frame.{self.image_field}")
+            stamp = np.asarray(getattr(frame, self.stamp_field), dtype=float)
+            newer = stamp > self._looked  # NaN: nothing delivered
             for e in np.flatnonzero(newer):
+                self._looked[e] = stamp[e]
                 if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
                     self.repeated[e] += 1
                     continue
@@ -106,6 +121,9 @@ class CameraInput:
         :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` binds), and the safe stop
         (``stale_sensor``) of the envs whose camera is stale."""
         images = getattr(policy, "images", {}).get(self.block.input)
+        if images is not None and images.shape[0] != self.envs and hasattr(policy, "bind_batch"):
+            policy.bind_batch(self.envs)  # bound for another batch yet: bind it for ours first
+            images = policy.images.get(self.block.input)
         supervision.safe_stop(self.update(frame, images), "stale_sensor")
 
     def _push(self, e: int, depth: np.ndarray, stamp: float) -> None:
@@ -152,6 +170,7 @@ class CameraInput:
             "raw": self._raw,
             "image": self.image,
             "stamp": self.stamp,
+            "looked": self._looked,
             "taken": self.taken,
             "repeated": self.repeated,
             "oldest": self.oldest,

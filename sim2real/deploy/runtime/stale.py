@@ -96,8 +96,16 @@ class StaleStops:
         other = stale_context(rt.backend, e)
         other["joints"] = {n: t for n, t in other.get("joints", {}).items() if n in joints}
         if camera_s is not None and not joints and imu_s is None and map_s is None:
-            stream = f"depth camera '{cameras.block.camera}'"  # frozen or silent
+            kind = "colour" if cameras.block.kind == "rgb" else "depth"
+            stream = f"{kind} camera '{cameras.block.camera}'"  # frozen or silent
             other.update(stream=stream, other_side=cameras.stale_phrase(e))
+            source = cameras.source  # a plant camera says which of its faults came before
+            if source is not None and hasattr(source, "recent"):
+                done = other["camera_faults"] = source.recent(e, float(rt.time))
+                other["other_side"] += (
+                    f"; in the {done['window_s']:g} s before: {done['frozen']} frames frozen, "
+                    f"{done['dropped']} dropped, {done['spiked']} late"
+                )
         return {
             "tick": int(rt.ticks),
             "t_s": round(float(rt.time), 6),

@@ -93,8 +93,9 @@ class RuntimeState:
 
     def _parts(self) -> dict:
         """The stages whose state is part of the runtime's: the estimator, guard, smoother and
-        the policy's observation (its gait clocks and frame history), and the policy, backend
-        and fault injector where they have a ``state_dict``."""
+        the policy's observation (its gait clocks and frame history), an image input's camera
+        stage and its plant camera, and the policy, backend and fault injector where they have a
+        ``state_dict``."""
         rt = self.rt
         parts = {"estimator": rt.estimator, "guard": rt.guard, "smoother": rt.smoother}
         parts["observation"] = ObservationState(rt.spec.plan, rt.envs)
@@ -103,6 +104,9 @@ class RuntimeState:
             parts["height_map"] = rt.height_map
         if getattr(rt, "cameras", None) is not None:  # a policy with an image input
             parts["camera"] = rt.cameras
+            source = rt.cameras.source  # the plant's camera: its frames in flight, its streams
+            if source is not None and hasattr(source, "state_dict"):
+                parts["camera_source"] = source
         for name, part in (
             ("policy", rt.policy),
             ("backend", rt.backend),

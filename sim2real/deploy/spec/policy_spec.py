@@ -38,7 +38,7 @@ import numpy as np
 
 from sim2real.deploy.core.state import RobotState
 from sim2real.deploy.spec.block_checks import observation_problems
-from sim2real.deploy.spec.camera import DepthImageBlock
+from sim2real.deploy.spec.camera import DepthImageBlock, RgbImageBlock
 from sim2real.deploy.spec.contract_parts import (  # noqa: F401 - importable from here too
     DEFAULT_CLIP,
     SMOOTHING,
@@ -112,7 +112,9 @@ class PolicySpec:
             ObservationHistory`: ticks, order, layout, fill); None: one frame, the present.
         images: The graph's image inputs besides the observation vector
             (:class:`sim2real.deploy.spec.camera.DepthImageBlock`: camera, shape, crop, resize,
-            clip, normalisation, frames and skip; JSON key ``images``, left out when empty).
+            clip, normalisation, frames and skip; :class:`~sim2real.deploy.spec.camera.
+            RgbImageBlock`, ``"kind": "rgb"``: channel order, layout, mean and std besides; JSON
+            key ``images``, left out when empty).
 
     ``robot_hash`` may be empty (a spec written by hand for a policy trained elsewhere): the
     description hash is then not checked.
@@ -130,7 +132,7 @@ class PolicySpec:
     constant_inputs: dict[str, float] = field(default_factory=dict)
     drive: DriveSpec | None = None
     history: ObservationHistory | None = None
-    images: tuple[DepthImageBlock, ...] = ()
+    images: tuple[DepthImageBlock | RgbImageBlock, ...] = ()
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -383,7 +385,9 @@ class PolicySpec:
             del d["drive"]
         else:
             d["drive"] = {k: v for k, v in d["drive"].items() if v}
-        if not d["images"]:
+        if d["images"]:  # each block's own JSON (an RGB block's says its kind)
+            d["images"] = [b.to_dict() for b in self.images]
+        else:
             del d["images"]
         if d["history"] is None:
             del d["history"]

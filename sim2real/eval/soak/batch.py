@@ -44,6 +44,7 @@ from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.batch_stats import BatchStats
 from sim2real.eval.soak.batch_tick import BatchTick
+from sim2real.eval.soak.camera_faults import attach_session_cameras
 from sim2real.eval.soak.curriculum_walk import CurriculumWalk
 from sim2real.eval.soak.exhibition import exhibition_task
 from sim2real.eval.soak.faults import SessionFaults
@@ -168,6 +169,8 @@ class SessionBatch:
             "ranges": first.ranges.commands,
         }
         exhibition_task(task, self.policy, robot, k, first)  # a tracking policy's dance
+        # a camera policy: the plant's camera, each session's camera faults drawn from its seed
+        self.camera = attach_session_cameras(backend, self.policy.spec, configs)
         self.rig = Rig(
             robot, self.policy, backend, envs=k, task=task, runtime={"injector": self.faults},
             start=True,

@@ -24,6 +24,7 @@ from sim2real.deploy.monitors.interventions import INTERVENTION_CHECKS
 from sim2real.deploy.monitors.violations import VIOLATION_TYPES
 from sim2real.deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.soak.camera_faults import camera_result
 from sim2real.eval.soak.falls import (
     attribute_falls,
     fall_replays,
@@ -266,6 +267,7 @@ def session_result(session: Session) -> dict:
         },
         "diverged": session.diverged,
         "wall": _wall(session, t_end),
+        **camera_result(session),  # a camera policy's: its drawn faults and frame counts
     }
 
 

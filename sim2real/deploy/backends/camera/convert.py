@@ -75,10 +75,10 @@ class FrameTarget:
 
 def target_for(block) -> FrameTarget:
     """The target of a spec's image block: a :class:`~sim2real.deploy.spec.camera.
-    DepthImageBlock` is ``depth``; a block with a ``channel_order`` (``rgb`` or ``bgr``) is
-    that colour, with ``mono`` for a one-channel block."""
-    order = getattr(block, "channel_order", None)
-    kind = "depth" if order is None else str(order).lower()
+    DepthImageBlock` is ``depth``; an :class:`~sim2real.deploy.spec.camera.RgbImageBlock` is
+    ``rgb`` whatever its ``channel_order`` (the runtime's camera stage reads frames in R, G, B
+    order and its preprocessing gives the graph its own order)."""
+    kind = "rgb" if getattr(block, "kind", "depth") == "rgb" else "depth"
     return FrameTarget(tuple(block.shape), kind, block.camera)
 
 

@@ -57,8 +57,10 @@ class CameraFeed:
             FrameTarget`). where: The source as the user named it, in every refusal.
         depth_unit: m per unit of a 16-bit depth frame (a RealSense's depth scale; ROS 0.001).
         monotonic: The clock (default ``time.monotonic``; a test may pass its own).
-        fields: The frame's image and stamp attributes (default the depth camera's,
-            ``depth_image`` and ``depth_stamp``, which the runtime's camera stage reads).
+        fields: The frame's image and stamp attributes (default those the runtime's camera
+            stage reads for the target: ``depth_image`` and ``depth_stamp`` for depth,
+            ``rgb_image`` and ``rgb_stamp`` for colour; :data:`sim2real.deploy.runtime.camera.
+            FRAME_FIELDS`).
 
     Attributes:
         received: Frames put. taken: Frames the loop took. overwritten: Frames replaced before
@@ -67,8 +69,11 @@ class CameraFeed:
     """
 
     def __init__(self, target: FrameTarget, where: str, depth_unit: float = 0.001,
-                 monotonic=time.monotonic, fields=("depth_image", "depth_stamp")):  # fmt: skip
+                 monotonic=time.monotonic, fields=None):  # fmt: skip
         self.target, self.where, self.depth_unit = target, where, depth_unit
+        if fields is None:
+            depth = target.kind == "depth"
+            fields = ("depth_image", "depth_stamp") if depth else ("rgb_image", "rgb_stamp")
         self.fields = fields
         self.monotonic = monotonic
         self._lock = threading.Lock()

@@ -1,13 +1,6 @@
 """A simulated depth camera on each env of a plant (:class:`PlantDepthCamera`): the MJCF
 ``<camera>`` rendered at its own rate, with a D435's depth model and the session's faults.
 
-Timing. Frame ``k`` is captured at ``k / rate`` s (the first control tick at or after it renders
-the scene: a 30 Hz camera beside a 200 Hz control loop captures every 6th or 7th tick) and is
-delivered ``latency`` s later (plus ``spike_latency`` when a latency spike hits it). Each tick the
-frame carries the newest delivered image (``frame.depth_image`` (envs, rows, columns) m) and its
-capture time (``frame.depth_stamp`` (envs,) s; NaN: nothing delivered yet); the runtime's camera
-stage (:mod:`sim2real.deploy.runtime.camera`) sees its age.
-
 Depth model (:class:`DepthNoise`; Intel RealSense D400 Series datasheet 337029, D435: depth RMS
 error <= 2 % at 2 m, depth unit 1 mm, range up to 10 m; minimum depth 0.11 m, Intel's figure for
 the D435 on its forum, the datasheet's min-Z table giving it per resolution): the true z-depth
@@ -19,26 +12,33 @@ writes it); so is a pixel at a depth edge (a 4-neighbour more than ``edge_jump``
 depth away: the stereo matcher's holes beside a foreground object, our choice 0.1); the rest is
 rounded to ``depth_unit``.
 
-Faults (:class:`CameraFaults`, drawn per frame from the generator seeded by ``seed``): a frame
-is lost with probability ``drop``; with probability ``spike`` it arrives ``spike_latency`` s
-later; a frozen spell starts at a frame with probability ``freeze`` and lasts ``freeze_frames``
-frames, each delivered on time with a fresh stamp and the image of the frame before it (a
-driver stuck on its buffer: the runtime sees a repeated image, which is not fresh). Two faults
-hold for the whole session: ``occlusion``, the fraction of the image's columns, from its left
-edge, that a covered or smudged lens blinds (they read 0, no depth); ``extrinsic``, the camera
-knocked on its mount, turned by (rx, ry, rz) rad about its own x (right), y (up) and z (back)
-axes in that order (the MJCF pose is the calibrated one the policy trained with).
+The frame's timing and the faults (a covered lens reads 0, no depth; a lighting change is a colour
+camera's) are :mod:`sim2real.deploy.backends.sim.plant_camera`'s, shared with the colour camera
+(:mod:`sim2real.deploy.backends.sim.rgb_camera`); :func:`attach_depth_camera` attaches the one a
+policy's image block asks for. The depth frame is ``frame.depth_image`` (envs, rows, columns) m.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-import mujoco
 import numpy as np
 
 from sim2real.deploy.backends.sim.depth_render import DepthRenderer
+from sim2real.deploy.backends.sim.plant_camera import CameraFaultRanges, CameraFaults, PlantCamera
+from sim2real.deploy.backends.sim.rgb_camera import PlantRgbCamera
 from sim2real.deploy.spec.camera import DepthImageBlock
+
+__all__ = [
+    "CameraFaultRanges",
+    "CameraFaults",
+    "DepthNoise",
+    "PlantCamera",
+    "PlantDepthCamera",
+    "attach_depth_camera",
+    "attach_plant_camera",
+    "depth_error",
+]
 
 #: D435 depth RMS error bound, fraction of the distance, at ``D435_AT`` m (datasheet).
 D435_RMS = 0.02
@@ -87,41 +87,7 @@ class DepthNoise:
         return asdict(self)
 
 
-@dataclass(frozen=True)
-class CameraFaults:
-    """A session's camera faults (module docstring): ``drop``, ``spike`` and ``freeze``
-    probabilities per frame, ``spike_latency`` s, ``freeze_frames`` frames; ``occlusion`` (a
-    fraction of the columns) and ``extrinsic`` (rad) for the session."""
-
-    drop: float = 0.0
-    spike: float = 0.0
-    spike_latency: float = 0.1
-    freeze: float = 0.0
-    freeze_frames: int = 10
-    occlusion: float = 0.0
-    extrinsic: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self):
-        if not (
-            0 <= self.occlusion <= 1
-            and len(self.extrinsic) == 3
-            and np.all(np.isfinite(self.extrinsic))
-            and 0 <= self.drop <= 1
-            and 0 <= self.spike <= 1
-            and 0 <= self.freeze <= 1
-            and self.spike_latency >= 0
-            and self.freeze_frames >= 1
-        ):
-            raise ValueError(
-                f"CameraFaults: probabilities and occlusion in [0, 1], spike_latency >= 0 s, "
-                f"freeze_frames >= 1, extrinsic 3 finite rad; got {self}"
-            )
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-class PlantDepthCamera:
+class PlantDepthCamera(PlantCamera):
     """The depth camera of every env of ``plant`` (module docstring).
 
     Args:
@@ -130,7 +96,8 @@ class PlantDepthCamera:
         rate: Frames per second (default the block's). latency: s from capture to delivery
             (default the block's).
         noise: The sensor model (default the D435's; None for :class:`DepthNoise`).
-        faults: The session's faults (default none). seed: Of the noise and fault draws.
+        faults: The session's faults (default none; or one per env, :class:`PlantCamera`).
+        seed: Of the noise and fault draws (or one generator per env).
         where: Named in a refusal (the robot's MJCF).
 
     Attributes:
@@ -151,130 +118,18 @@ class PlantDepthCamera:
         seed: int = 0,
         where: str = "MJCF",
     ):
-        self.plant, self.block = plant, block
-        self.rate = float(block.rate if rate is None else rate)
-        self.latency = float(block.latency if latency is None else latency)
-        if not (self.rate > 0 and self.latency >= 0):
-            raise ValueError(
-                f"PlantDepthCamera: rate > 0 Hz, latency >= 0 s; got {self.rate}, {self.latency}"
-            )
         self.noise = DepthNoise() if noise is None else noise
-        self.faults = faults or CameraFaults()
-        self.rng = np.random.default_rng(seed)
-        envs = plant.envs
-        self.renderers = [DepthRenderer(m, block.camera, block.shape, where) for m in plant.models]
-        if any(self.faults.extrinsic):  # the camera knocked on its mount
-            turn = np.zeros(4)
-            mujoco.mju_euler2Quat(turn, np.asarray(self.faults.extrinsic, float), "XYZ")
-            for r in self.renderers:
-                cid, quat = r.cam.fixedcamid, np.zeros(4)
-                mujoco.mju_mulQuat(quat, r.model.cam_quat[cid].copy(), turn)
-                r.model.cam_quat[cid] = quat
-        #: the columns a covered lens blinds
-        self._blind = int(round(self.faults.occlusion * block.shape[1]))
-        self.frames = np.zeros(envs, dtype=np.int64)
-        self.delivered = np.zeros(envs, dtype=np.int64)
-        self.dropped = np.zeros(envs, dtype=np.int64)
-        self.spiked = np.zeros(envs, dtype=np.int64)
-        self.frozen = np.zeros(envs, dtype=np.int64)
-        self._freeze_left = np.zeros(envs, dtype=np.int64)
-        self._last = np.zeros((envs, *block.shape), np.float32)  # the last image made
-        #: per env, frames in flight: [(deliver_at s, stamp s, image)]
-        self._queue: list[list[tuple[float, float, np.ndarray]]] = [[] for _ in range(envs)]
+        super().__init__(plant, block, rate, latency, faults, seed, where, DepthRenderer)
         self._truth = np.zeros(block.shape, np.float32)
 
     def true_depth(self, env: int = 0) -> np.ndarray:
         """(rows, columns) float32 m, the camera's true z-depth of env ``env`` now."""
         return self.renderers[env].render(self.plant.datas[env], self._truth)
 
-    def _capture(self, e: int, stamp: float) -> None:
-        f, rng = self.faults, self.rng
-        self.frames[e] += 1
-        if self._freeze_left[e] > 0:  # a stuck driver: the old image again, stamped anew
-            self._freeze_left[e] -= 1
-            self.frozen[e] += 1
-            image = self._last[e].copy()
-        else:
-            image = self.noise.apply(self.true_depth(e), rng).astype(np.float32)
-            image[:, : self._blind] = 0.0  # a covered lens: no depth
-            self._last[e] = image
-            if f.freeze and rng.random() < f.freeze:
-                self._freeze_left[e] = f.freeze_frames
-        if f.drop and rng.random() < f.drop:
-            self.dropped[e] += 1
-            return
-        late = self.latency
-        if f.spike and rng.random() < f.spike:
-            self.spiked[e] += 1
-            late += f.spike_latency
-        self._queue[e].append((stamp + late, stamp, image))
-
-    def fill(self, frame) -> None:
-        """Capture the frames due by ``frame.time`` and write the newest delivered one into
-        ``frame.depth_image`` and ``frame.depth_stamp`` (made on the first call; module
-        docstring)."""
-        envs = self.plant.envs
-        if getattr(frame, "depth_image", None) is None:
-            frame.depth_image = np.zeros((envs, *self.block.shape), np.float32)
-            frame.depth_stamp = np.full(envs, np.nan)
-        now = np.broadcast_to(np.asarray(frame.time, dtype=float), (envs,))
-        for e in range(envs):
-            while self.frames[e] / self.rate <= now[e] + 1e-9:
-                self._capture(e, self.frames[e] / self.rate)
-            queue = self._queue[e]
-            ready = [item for item in queue if item[0] <= now[e] + 1e-9]
-            if ready:
-                newest = max(ready, key=lambda item: item[1])
-                self._queue[e] = [item for item in queue if item[1] > newest[1]]
-                self.delivered[e] += 1
-                frame.depth_image[e] = newest[2]
-                frame.depth_stamp[e] = newest[1]
-
-    def summary(self) -> dict:
-        """The run report's camera lines: rate, latency, faults and the counts per env."""
-        return {
-            "camera": self.block.camera,
-            "rate_hz": self.rate,
-            "latency_s": self.latency,
-            "faults": self.faults.to_dict(),
-            **{
-                k: getattr(self, k).tolist()
-                for k in ("frames", "delivered", "dropped", "spiked", "frozen")
-            },
-        }
-
-    def close(self) -> None:
-        for r in self.renderers:
-            r.close()
-
-
-@dataclass(frozen=True)
-class CameraFaultRanges:
-    """The ranges a session's :class:`CameraFaults` are drawn from, uniformly (our choice):
-    ``drop`` 0-5 % of frames, ``spike`` 0-2 % of frames 50-200 ms late, ``freeze`` 0-0.5 % of
-    frames starting a 5-30 frame spell, ``occlusion`` 0-10 % of the columns, ``extrinsic`` up
-    to 2 deg about each axis (a camera knocked on its mount)."""
-
-    drop: tuple[float, float] = (0.0, 0.05)
-    spike: tuple[float, float] = (0.0, 0.02)
-    spike_latency: tuple[float, float] = (0.05, 0.2)
-    freeze: tuple[float, float] = (0.0, 0.005)
-    freeze_frames: tuple[int, int] = (5, 30)
-    occlusion: tuple[float, float] = (0.0, 0.1)
-    extrinsic: float = float(np.radians(2.0))
-
-    def sample(self, rng: np.random.Generator) -> CameraFaults:
-        """One session's draw (seven draws of ``rng``, in the fields' order; ``extrinsic``
-        three uniform in +-``extrinsic`` rad)."""
-        return CameraFaults(
-            drop=float(rng.uniform(*self.drop)),
-            spike=float(rng.uniform(*self.spike)),
-            spike_latency=float(rng.uniform(*self.spike_latency)),
-            freeze=float(rng.uniform(*self.freeze)),
-            freeze_frames=int(rng.integers(self.freeze_frames[0], self.freeze_frames[1] + 1)),
-            occlusion=float(rng.uniform(*self.occlusion)),
-            extrinsic=tuple(float(v) for v in rng.uniform(-self.extrinsic, self.extrinsic, 3)),
-        )
+    def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
+        image = self.noise.apply(self.true_depth(e), rng).astype(np.float32)
+        image[:, : self._blind[e]] = 0.0  # a covered lens: no depth
+        return image
 
 
 def depth_error(camera: PlantDepthCamera, frames: int, at: float, env: int = 0) -> dict:
@@ -310,14 +165,17 @@ def attach_depth_camera(
     spec,
     rate: float | None = None,
     latency: float | None = None,
-    noise: DepthNoise | None = None,
-    faults: CameraFaults | None = None,
-    seed: int = 0,
-) -> PlantDepthCamera | None:
+    noise=None,
+    faults=None,
+    seed=0,
+) -> PlantCamera | None:
     """For a simulated plant (its ``models``, ``datas``) and a spec with an image block: the
-    plant's camera made the runtime's frame source (``backend.camera_source``,
+    plant's camera (:class:`PlantDepthCamera` for a depth block,
+    :class:`sim2real.deploy.backends.sim.rgb_camera.PlantRgbCamera` for an RGB one) made the
+    runtime's frame source (``backend.camera_source``,
     :func:`sim2real.deploy.runtime.camera.camera_stage`) and returned; else None (a backend that
-    is no plant: its own driver writes the frames).
+    is no plant: its own driver writes the frames). ``noise``: the block's sensor model (None:
+    the datasheet's); ``faults`` and ``seed`` as :class:`PlantCamera` takes them.
 
     Raises:
         CameraError: the robot's MJCF has no camera of the block's name (one line naming the
@@ -328,6 +186,13 @@ def attach_depth_camera(
         return None
     robot = getattr(backend, "robot", None)
     where = f"{getattr(robot, 'mjcf_path', 'MJCF')}: images[0].camera"
-    camera = PlantDepthCamera(backend, images[0], rate, latency, noise, faults, seed, where)
+    if images[0].kind == "rgb":
+        camera = PlantRgbCamera(backend, images[0], rate, latency, noise, faults, seed, where)
+    else:
+        camera = PlantDepthCamera(backend, images[0], rate, latency, noise, faults, seed, where)
     backend.camera_source = camera
     return camera
+
+
+#: The name that says it attaches either kind.
+attach_plant_camera = attach_depth_camera

@@ -1,4 +1,5 @@
-"""MuJoCo's offscreen z-depth of an MJCF ``<camera>`` (:class:`DepthRenderer`), headless.
+"""MuJoCo's offscreen z-depth of an MJCF ``<camera>`` (:class:`DepthRenderer`), headless, and the
+offscreen drawing it shares with the colour renderer (:class:`OffscreenCamera`).
 
 The OpenGL context follows ``MUJOCO_GL`` (``egl``, ``osmesa``, ``glfw``); where it is unset on a
 Linux machine without a display, EGL (Mesa's ``libEGL``; Debian ``libegl1 libgl1-mesa-dri``, as
@@ -62,19 +63,32 @@ def _context_class():
     return GLContext
 
 
-class DepthRenderer:
-    """The z-depth of one MJCF camera of one model, (rows, columns) m per call.
+class OffscreenCamera:
+    """One MJCF camera of a copy of one model drawn offscreen, headless (module docstring): what
+    the depth and the colour renderers share (:class:`DepthRenderer`,
+    :class:`sim2real.deploy.backends.sim.rgb_render.RgbRenderer`).
 
     Args:
         model: The model (a copy is rendered, its offscreen buffer the frame's size and without
-            multisampling: a depth pixel is one ray's, not an average across an edge).
-        camera: The ``<camera>``'s name. shape: (rows, columns). where: Named in errors.
+            multisampling). camera: The ``<camera>``'s name. shape: (rows, columns).
+        where: Named in errors. flags_off: ``mjtRndFlag`` names turned off in the scene.
+
+    Attributes:
+        model: The copy drawn (its ``cam_quat``, lights and headlight may be changed: a knocked
+            camera, a lighting change). cam: The ``MjvCamera`` (``fixedcamid``).
 
     Raises:
         CameraError: no such camera. RuntimeError: no OpenGL context (naming ``MUJOCO_GL``).
     """
 
-    def __init__(self, model: mujoco.MjModel, camera: str, shape: tuple[int, int], where: str):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        camera: str,
+        shape: tuple[int, int],
+        where: str,
+        flags_off: tuple[str, ...] = (),
+    ):
         self.model = model = copy.copy(model)
         self.shape = (int(shape[0]), int(shape[1]))
         self.cam = mujoco.MjvCamera()
@@ -98,17 +112,14 @@ class DepthRenderer:
             ) from None
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
         self._scene = mujoco.MjvScene(model, maxgeom=10000)
-        for flag in ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX"):  # no depth in them
+        for flag in flags_off:
             self._scene.flags[getattr(mujoco.mjtRndFlag, flag)] = False
         self._opt, self._pert = mujoco.MjvOption(), mujoco.MjvPerturb()
         self._rect = mujoco.MjrRect(0, 0, cols, rows)
-        self._z = np.zeros(self.shape, np.float32)
-        extent = model.stat.extent
-        self.near, self.far = model.vis.map.znear * extent, model.vis.map.zfar * extent
 
-    def render(self, data: mujoco.MjData, out: np.ndarray | None = None) -> np.ndarray:
-        """(rows, columns) float32 z-depth, m, of the scene in ``data`` (its kinematics and
-        camera poses recomputed from ``qpos`` first)."""
+    def draw(self, data: mujoco.MjData) -> None:
+        """Draw the scene in ``data`` (its kinematics and camera poses recomputed from ``qpos``
+        first) into the offscreen buffer; :meth:`read` then reads it."""
         m = self.model
         mujoco.mj_kinematics(m, data)
         mujoco.mj_camlight(m, data)
@@ -117,11 +128,11 @@ class DepthRenderer:
             m, data, self._opt, self._pert, self.cam, mujoco.mjtCatBit.mjCAT_ALL, self._scene
         )
         mujoco.mjr_render(self._rect, self._scene, self._con)
-        mujoco.mjr_readPixels(None, self._z, self._rect, self._con)
-        out = np.empty(self.shape, np.float32) if out is None else out
-        z = self._z[::-1]  # OpenGL's rows run bottom-up
-        np.divide(self.near, 1.0 - z * (1.0 - self.near / self.far), out=out)
-        return out
+
+    def read(self, rgb: np.ndarray | None, depth: np.ndarray | None) -> None:
+        """Read the drawn buffer's colour (rows, columns, 3) uint8 and/or raw depth (rows,
+        columns) float32 into the arrays given (OpenGL's rows: bottom-up)."""
+        mujoco.mjr_readPixels(rgb, depth, self._rect, self._con)
 
     def close(self) -> None:
         """Free the GL context (the renderer is unusable after)."""
@@ -136,3 +147,35 @@ class DepthRenderer:
             self.close()
         except Exception:  # noqa: BLE001, S110 - at interpreter exit GL may be gone
             pass
+
+
+class DepthRenderer(OffscreenCamera):
+    """The z-depth of one MJCF camera of one model, (rows, columns) m per call.
+
+    Args:
+        model: The model (a copy is rendered, its offscreen buffer the frame's size and without
+            multisampling: a depth pixel is one ray's, not an average across an edge).
+        camera: The ``<camera>``'s name. shape: (rows, columns). where: Named in errors.
+
+    Raises:
+        CameraError: no such camera. RuntimeError: no OpenGL context (naming ``MUJOCO_GL``).
+    """
+
+    def __init__(self, model: mujoco.MjModel, camera: str, shape: tuple[int, int], where: str):
+        # no depth in shadows, reflections and the skybox
+        super().__init__(
+            model, camera, shape, where, ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX")
+        )
+        self._z = np.zeros(self.shape, np.float32)
+        extent = self.model.stat.extent
+        self.near, self.far = self.model.vis.map.znear * extent, self.model.vis.map.zfar * extent
+
+    def render(self, data: mujoco.MjData, out: np.ndarray | None = None) -> np.ndarray:
+        """(rows, columns) float32 z-depth, m, of the scene in ``data`` (its kinematics and
+        camera poses recomputed from ``qpos`` first)."""
+        self.draw(data)
+        self.read(None, self._z)
+        out = np.empty(self.shape, np.float32) if out is None else out
+        z = self._z[::-1]  # OpenGL's rows run bottom-up
+        np.divide(self.near, 1.0 - z * (1.0 - self.near / self.far), out=out)
+        return out

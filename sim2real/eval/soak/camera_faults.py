@@ -1,0 +1,100 @@
+"""The camera faults of a soak session, drawn from its seed (:func:`session_camera_faults`), on the
+plant camera of a batch whose policy reads an image (:func:`attach_session_cameras`), and the
+session result's ``camera`` section (:func:`camera_result`).
+
+Each session draws its :class:`sim2real.deploy.backends.sim.camera.CameraFaults` (dropped
+frames, latency spikes, frozen spells, a covered lens, a camera knocked a few degrees on its
+mount, a lighting change; the ranges :class:`~sim2real.deploy.backends.sim.camera.
+CameraFaultRanges`) from its own ``camera`` stream (``sim2real.eval.world.session_draw.STREAMS``),
+so a session's other draws are what they were without a camera; the same generator then draws
+the camera's per-frame faults and sensor noise, so a session's camera is its own whatever its
+neighbours in the batch. A session run without faults (``SessionConfig.faults`` False) draws
+none: its camera only has its sensor model. A frame that comes late or frozen is judged by the
+runtime's camera stage (:mod:`sim2real.deploy.runtime.camera`): stale past its limit, a safe stop
+``stale_sensor`` like any sensor.
+
+Hooks (the only lines outside this module): :class:`sim2real.eval.soak.batch.SessionBatch`
+calls :func:`attach_session_cameras` before it makes its runtime;
+:func:`sim2real.eval.soak.result.session_result` adds :func:`camera_result`'s section.
+"""
+
+from __future__ import annotations
+
+from sim2real.deploy.backends.sim.camera import (
+    CameraFaultRanges,
+    CameraFaults,
+    attach_plant_camera,
+)
+from sim2real.eval.world.session_draw import session_rng
+
+#: The session stream the camera draws from (``sim2real.eval.world.session_draw.STREAMS``).
+CAMERA_STREAM = "camera"
+
+
+def session_camera_faults(
+    seed: int, ranges: CameraFaultRanges | None = None, rng=None
+) -> CameraFaults:
+    """Session ``seed``'s camera faults: the first draws of its ``camera`` stream (or of
+    ``rng``, that stream's generator, when given).
+
+    Raises:
+        ValueError: a negative seed (:func:`sim2real.eval.world.session_draw.session_rng`)."""
+    rng = session_rng(seed, CAMERA_STREAM) if rng is None else rng
+    return (ranges or CameraFaultRanges()).sample(rng)
+
+
+def attach_session_cameras(backend, spec, configs, ranges: CameraFaultRanges | None = None):
+    """For a batch's plant ``backend`` (one env per session of ``configs``, in order) and a
+    policy ``spec`` with an image block: the plant's camera, each env with its session's drawn
+    faults (none where the session runs without faults) and its session's generator, made the
+    runtime's frame source; None without an image block.
+
+    Raises:
+        CameraError: the robot's MJCF has no camera of the block's name.
+        RuntimeError: no OpenGL context (naming ``MUJOCO_GL``).
+    """
+    if not getattr(spec, "images", ()):
+        return None
+    rngs = [session_rng(c.seed, CAMERA_STREAM) for c in configs]
+    faults = [
+        session_camera_faults(c.seed, ranges, rng) if c.faults else CameraFaults()
+        for c, rng in zip(configs, rngs, strict=True)
+    ]
+    return attach_plant_camera(backend, spec, faults=faults, seed=rngs)
+
+
+def camera_result(session) -> dict:
+    """The session result's ``camera`` section, ``{}`` without a camera: ``{"camera": {camera,
+    kind, rate_hz, latency_s, faults (the drawn CameraFaults), frames, delivered, dropped,
+    spiked, frozen (the plant's counts), frames_taken, frames_repeated (the runtime's: fresh
+    frames and frozen ones refused), oldest_s (the largest age of the last fresh frame, s),
+    stale_stops (the runtime's stale stops of this session that the camera caused, each
+    ``{t_s, camera_s, followed}``: its time, the last fresh frame's age and what the camera's
+    faults did in the second before, :meth:`~sim2real.deploy.backends.sim.plant_camera.
+    PlantCamera.recent`)}}``."""
+    b, e = session.batch, session.e
+    source = getattr(b.backend, "camera_source", None)
+    stage = getattr(b.rt, "cameras", None)
+    if source is None or stage is None:
+        return {}
+    stops = [
+        r
+        for r in getattr(getattr(b.rt, "stale_stops", None), "records", [])
+        if r.get("env") == e and r.get("camera_s") is not None
+    ]
+    return {
+        "camera": {
+            **source.summary(e),
+            "frames_taken": int(stage.taken[e]),
+            "frames_repeated": int(stage.repeated[e]),
+            "oldest_s": round(float(stage.oldest[e]), 6),
+            "stale_stops": [
+                {
+                    "t_s": r["t_s"],
+                    "camera_s": r["camera_s"],
+                    "followed": r.get("other_side", {}).get("camera_faults"),
+                }
+                for r in stops
+            ],
+        }
+    }

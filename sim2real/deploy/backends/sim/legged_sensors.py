@@ -144,9 +144,11 @@ class BaseSensorModel:
         self.heading_error = np.zeros(envs)
         self._noise1 = np.empty((envs, 1))
         self._site_quat = np.array(backend.models[0].site_quat[robot.imu_site_id], dtype=float)
-        # an AHRS's attitude is relative to gravity: the world turned so that gravity is -z
+        # an AHRS's attitude is relative to gravity: the world turned so that gravity is -z (a
+        # model without gravity has no up: the world's own frame)
         g = np.array(backend.models[0].opt.gravity, dtype=float)
-        self._gravity_frame = align_up(-g / np.linalg.norm(g))
+        norm = float(np.linalg.norm(g))
+        self._gravity_frame = align_up(-g / norm) if norm > 0 else np.array([1.0, 0, 0, 0])
 
         m = backend.models[0]
         gyro = sensor_address(m, mujoco.mjtSensor.mjSENS_GYRO, robot.imu_site_id)

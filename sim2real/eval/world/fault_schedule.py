@@ -345,7 +345,7 @@ def _drawable_kinds(robot: Robot, ranges: FaultRanges, sensors: SensorDraw, max_
             f"{sensors.latency_ticks} ticks of latency); the fault kinds {ranges.kinds} "
             "leave none to draw",
         )  # fmt: skip
-    refused = WORLD_OF_KIND.get(robot_kind(robot).name).refused_faults()
+    refused = WORLD_OF_KIND.get(robot_kind(robot)).refused_faults()
     for fault in [k for k in refused if k in kinds]:  # the kind's world's (a legged: no cable)
         kinds, weights = _without(
             kinds, weights, (fault,),

@@ -83,3 +83,38 @@ def test_no_module_imports_a_room_by_a_bare_name():
             for m in bare.finditer(path.read_text())
         ]
     assert not found, found
+
+
+def test_the_benchmarks_run_from_any_folder_once_installed(tmp_path, capsys, monkeypatch):
+    """``python -m sim2real.bench`` runs the checkout's ``bench`` from a folder outside it, with no
+    PYTHONPATH: what an editable install (``make install``) maps is enough. Skipped, naming it,
+    when the interpreter's installed ``sim2real`` is another checkout's (a second worktree)."""
+    import os
+
+    import pytest
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    where = subprocess.run(
+        [sys.executable, "-c", "import sim2real; print(sim2real.__file__)"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    installed = (
+        Path(where.stdout.strip()).resolve().parent.parent if where.returncode == 0 else None
+    )
+    if installed != ROOT:
+        pytest.skip(f"the installed sim2real is {installed}'s, not this checkout's ({ROOT})")
+    done = subprocess.run(
+        [sys.executable, "-m", "sim2real.bench", "--help"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage: python -m bench") and "--only" in done.stdout
+
+
+def test_the_benchmarks_without_a_checkout_say_so_in_one_line(monkeypatch, capsys):
+    from sim2real import bench
+
+    monkeypatch.setattr(bench, "checkout", lambda: None)
+    assert bench.main(["--help"]) == bench.EXIT_NO_CHECKOUT
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("sim2real.bench: no source checkout") and "\n" not in err

@@ -79,11 +79,17 @@ def face_types() -> list:
 
 
 def missing_faces() -> list[str]:
-    """``"<kind>: <face>"`` for each face type a registered robot kind has no face of."""
+    """``"<kind>: <face>"`` for each face type a registered robot kind has no face of, neither
+    its own nor one it inherits (``Faces.find`` along its ``lineage()``)."""
     from sim2real.deploy.kinds import KIND_REGISTRY
 
     kinds = KIND_REGISTRY.entries()
-    return [f"{k}: {f.what}" for k in kinds for f in face_types() if k not in f.kinds()]
+    return [
+        f"{name}: {f.what}"
+        for name, kind in kinds.items()
+        for f in face_types()
+        if f.find(kind) is None
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -215,11 +221,7 @@ notes which of its choices the assembly asked (``ASKED``)."""
 
 from dataclasses import dataclass
 
-from sim2real.deploy.backends.sim.plant_faces import PLANT_EXTRAS
 from sim2real.deploy.kinds import Legged, register_kind
-from sim2real.eval.film.render import FILM_OF_KIND
-from sim2real.eval.soak.soak_faces import OPERATOR_OF_KIND
-from sim2real.eval.world.session_ranges import SESSION_RANGES
 from sim2real.eval.world.world_faces import WORLD_OF_KIND, FreeWorld
 
 ASKED = []
@@ -245,9 +247,8 @@ class GantryLegged(Legged):
 
 
 GANTRY_LEGGED = register_kind(GantryLegged(name="gantry_legged"))
-# its faces in the rooms above: a legged robot's, and a soak world that pulls its tether
-for faces in (PLANT_EXTRAS, SESSION_RANGES, FILM_OF_KIND, OPERATOR_OF_KIND):
-    faces.register("gantry_legged", faces.get("legged"))
+# its faces in the rooms above: a legged robot's (inherited), but a soak world that pulls its
+# tether (its own)
 WORLD_OF_KIND.register("gantry_legged", FreeWorld(refused=dict()))
 '''
 
@@ -430,14 +431,56 @@ def test_the_built_in_kinds_are_one_module_each_and_wheel_legged_is_a_legged_rob
 
 
 def test_every_registered_kind_has_a_face_of_every_face_type():
-    from sim2real.deploy.kinds import KIND_REGISTRY, Arm, register_kind
+    from sim2real.deploy.kinds import KIND_REGISTRY, register_kind
+    from sim2real.deploy.robot_kind import RobotKind
 
     assert len(face_types()) >= 3  # the soak's range defaults, the plant's extras, the film
     assert missing_faces() == [], "robot kinds without a face:\n" + "\n".join(missing_faces())
     with KIND_REGISTRY.scoped():
-        register_kind(Arm(name="faceless_arm"))  # a kind whose faces nobody registered
-        assert {m.split(":")[0] for m in missing_faces()} == {"faceless_arm"}
+        # a kind of its own (no registered kind's class) whose faces nobody registered
+        register_kind(RobotKind("faceless", False, "goals", True))
+        assert {m.split(":")[0] for m in missing_faces()} == {"faceless"}
         assert len(missing_faces()) == len(face_types())
+
+
+def test_the_kinds_tasks_are_registered_tasks():
+    """Every task a kind may have (``KIND_TASKS``) is one the task registry builds, and each
+    registered kind's own; a kind with another task is refused by name."""
+    from sim2real.deploy.kinds import KIND_REGISTRY, register_kind
+    from sim2real.deploy.robot_kind import KIND_TASKS, RobotKind
+    from sim2real.deploy.tasks.task import TASKS
+
+    assert set(KIND_TASKS) <= set(TASKS), (
+        f"kind tasks not registered: {set(KIND_TASKS) - set(TASKS)}"
+    )
+    assert {k.task for k in KIND_REGISTRY.entries().values()} <= set(KIND_TASKS)
+    with (
+        KIND_REGISTRY.scoped(),
+        pytest.raises(ValueError, match="task 'dance' is not one of goals"),
+    ):
+        register_kind(RobotKind("dancer", False, "dance", True))
+
+
+def test_faces_inherit_along_the_kind_hierarchy(plugin):
+    """A kind takes the faces of the kind it derives from unless it registers its own: the
+    wheel-legged and legged-arm robots register none and walk as legged robots; a contributor's
+    ``Arm(name=...)`` is an arm to every room; a face of its own wins."""
+    from sim2real.deploy.kinds import ARM, LEGGED, LEGGED_ARM, WHEEL_LEGGED, Arm, register_kind
+
+    assert WHEEL_LEGGED.lineage() == ("wheel_legged", "legged")
+    assert LEGGED_ARM.lineage() == ("legged_arm", "legged") and LEGGED.lineage() == ("legged",)
+    for faces in face_types():
+        assert faces.get(WHEEL_LEGGED) is faces.get(LEGGED), faces.what
+        assert faces.get(LEGGED_ARM) is faces.get(LEGGED), faces.what
+    compliant = register_kind(Arm(name="compliant_arm"))
+    assert compliant.lineage() == ("compliant_arm", "arm")
+    assert all(f.get(compliant) is f.get(ARM) for f in face_types())
+    from sim2real.eval.world.world_faces import WORLD_OF_KIND as world
+
+    world.register("compliant_arm", "its own")
+    assert world.get(compliant) == "its own" and world.get(ARM) != "its own"
+    with pytest.raises(ValueError, match="robot kind 'wheel_legged' has no soak world"):
+        world.get("wheel_legged")  # a bare name asks that name only
 
 
 #: At most this many lines of the runtime (``sim2real/deploy/runtime/``) test whether a base

@@ -8,7 +8,7 @@ import pytest
 
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.core.backend import BackendLifecycle
-from sim2real.deploy.core.delegate import delegate
+from sim2real.deploy.core.delegate import delegate, forward
 
 
 def test_the_plant_is_its_stages_and_not_mixins(arm3):
@@ -43,6 +43,36 @@ def test_a_delegate_follows_a_replaced_stage_and_writes_only_when_writable():
         owner.value = 4
 
 
+def test_a_delegate_forwards_data_and_a_method_is_forwarded(arm3):
+    """``delegate`` is for data: one naming a method is refused where it is read; a method is
+    ``forward``-ed, a method of the owner. Every delegate of the plant reads data (the
+    runtime's: the next test)."""
+
+    class Stage:
+        def __init__(self):
+            self.value = 1
+
+        def double(self, x, times=2):
+            return x * times
+
+    class Owner:
+        value = delegate("stage", "value")
+        double = forward("stage", "double")
+        wrong = delegate("stage", "double")
+
+    owner = Owner()
+    owner.stage = Stage()
+    assert owner.value == 1 and owner.double(3) == 6 and owner.double(3, times=3) == 9
+    with pytest.raises(TypeError, match=r"delegate\('stage', 'double'\) names a method"):
+        owner.wrong  # noqa: B018
+    plant = SimBackend(arm3, envs=1)
+    delegates = [n for n, a in vars(SimBackend).items() if isinstance(a, property)]
+    assert {"noise_sigma", "grounds", "free_base"} <= set(delegates)
+    for name in delegates:
+        getattr(plant, name)  # data, or a TypeError naming the method
+    assert np.array_equal(plant.true_position(), plant.truth.position())
+
+
 def test_the_runtime_is_its_stages_and_keeps_its_own_clock(arm3, tmp_path):
     """The runtime holds its run and its state dict as stages (no mixin bases); loading a state
     moves its tick and time, which only it writes."""
@@ -56,6 +86,7 @@ def test_the_runtime_is_its_stages_and_keeps_its_own_clock(arm3, tmp_path):
     rt.start()
     rt.run(5)
     assert (rt.ticks, rt.gc_collections) == (5, rt.run_loop.gc_collections)
+    assert rt.action is rt.supervision.action and rt.mode_names() == ["RUNNING"]
     state = rt.state_dict()
     rt.run(3)
     rt.load_state_dict(state)

@@ -125,6 +125,20 @@ class RobotKind:
         the tolerances. Raises NotImplementedError: a kind that does not say."""
         raise NotImplementedError(f"robot kind '{self.name}': targets")
 
+    def lineage(self) -> tuple[str, ...]:
+        """The kinds whose faces this kind takes, nearest first (a face registered under a
+        higher room's name is inherited, :class:`sim2real.deploy.core.registry.Faces`): its own
+        name, then for its class and each base class in method resolution order the first other
+        registered kind of exactly that class (a wheel-legged robot's
+        ``("wheel_legged", "legged")``, a contributor's ``Arm(name="compliant_arm")``'s
+        ``("compliant_arm", "arm")``)."""
+        entries = KIND_REGISTRY.entries()
+        out = [self.name]
+        for cls in type(self).__mro__:
+            same = [n for n, k in entries.items() if type(k) is cls and n not in out]
+            out += same[:1]
+        return tuple(out)
+
     def wheel_drives(self, robot, envs: int, mode: str):
         """The command stage of the robot's velocity-driven joints (their speed targets, and
         what a safe stop brakes them to:
@@ -132,6 +146,12 @@ class RobotKind:
         none (:meth:`check` refuses a robot with any)."""
         return None
 
+
+#: The tasks a robot kind may have as its own (:attr:`RobotKind.task`), each a task registered
+#: in :data:`sim2real.deploy.tasks.task.TASKS` (a room above: ``tests/test_seams.py`` holds the
+#: two to agree); a motion-tracking policy's ``tracking`` task is its policy's choice, not a
+#: kind's.
+KIND_TASKS = ("goals", "locomotion")
 
 #: The registered robot kinds (:class:`sim2real.deploy.core.registry.Registry`); the built-in
 #: ones register when :mod:`sim2real.deploy.kinds` is imported, a kind kept outside the tree when
@@ -143,11 +163,13 @@ def register_kind(kind: RobotKind) -> RobotKind:
     """Register ``kind`` under its name: robot.toml's ``kind = "<name>"`` chooses it.
 
     Raises:
-        ValueError: the name is registered already, or the kind's task is not one
-            :func:`sim2real.deploy.tasks.task.task_for` builds (``goals``, ``locomotion``).
+        ValueError: the name is registered already, or the kind's task is not one of
+            :data:`KIND_TASKS`.
     """
-    if kind.task not in ("goals", "locomotion"):
-        raise ValueError(f"robot kind '{kind.name}': task '{kind.task}' is not goals or locomotion")
+    if kind.task not in KIND_TASKS:
+        raise ValueError(
+            f"robot kind '{kind.name}': task '{kind.task}' is not one of {', '.join(KIND_TASKS)}"
+        )
     return KIND_REGISTRY.register(kind.name, kind)
 
 

@@ -304,7 +304,7 @@ def run(args) -> int:
     baseline = load_report(args.baseline) if args.baseline else None
     robot = load_robot(args.robot)
     ranges, domain, file = _ranges(args, robot)
-    pushes = WORLD_OF_KIND.get(robot_kind(robot).name).domain_pushes(ranges)
+    pushes = WORLD_OF_KIND.get(robot_kind(robot)).domain_pushes(ranges)
     if pushes is not None:
         print(f"soak-test: pushes: {pushes.describe()}")
     if getattr(ranges, "terrain", None) is not None and not ranges.terrain.flat:

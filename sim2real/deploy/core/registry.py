@@ -140,7 +140,10 @@ class Faces(Generic[T]):
     plant's extras in :mod:`sim2real.deploy.backends.sim.plant_faces`, the film in
     :mod:`sim2real.eval.film.render`): a kind is one module plus its faces, each in its own
     room, and no room below names a room above it. Keyed by name, not by the kind object, so a
-    room registers its faces without importing the kinds.
+    room registers its faces without importing the kinds; inherited along the kind hierarchy:
+    a kind without a face of its own takes the nearest of its ``lineage()``
+    (:meth:`sim2real.deploy.robot_kind.RobotKind.lineage`: a wheel-legged robot a legged
+    robot's).
 
     Args:
         what: The face's name, for messages (``"soak's range defaults"``).
@@ -162,18 +165,31 @@ class Faces(Generic[T]):
         self._faces[kind] = face
         return face
 
-    def get(self, kind: str) -> T:
-        """The face of the robot kind named ``kind``.
+    def find(self, kind) -> T | None:
+        """The face of ``kind``, or None: a robot kind (its ``lineage()``: its own name, then the
+        kinds it inherits faces from, nearest first) or a kind's name (that name only)."""
+        names = kind.lineage() if hasattr(kind, "lineage") else (kind,)
+        for name in names:
+            if name in self._faces:
+                return self._faces[name]
+        return None
+
+    def get(self, kind) -> T:
+        """The face of ``kind`` (:meth:`find`): a kind without its own takes the nearest one
+        along its lineage (a wheel-legged robot's, a legged robot's).
 
         Raises:
-            ValueError: the kind registered none (the message names the kinds that did).
+            ValueError: neither the kind nor one it inherits from registered one (the message
+                names the kinds that did).
         """
-        if kind not in self._faces:
+        face = self.find(kind)
+        if face is None:
+            name = getattr(kind, "name", kind)
             raise ValueError(
-                f"robot kind '{kind}' has no {self.what}: expected one registered under its name "
-                f"(registered: {sorted(self._faces)})"
+                f"robot kind '{name}' has no {self.what}: expected one registered under its name "
+                f"or a kind it inherits from (registered: {sorted(self._faces)})"
             )
-        return self._faces[kind]
+        return face
 
     def kinds(self) -> tuple[str, ...]:
         """The names of the kinds with this face, in registration order."""

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from sim2real.deploy.core.delegate import delegate
+from sim2real.deploy.core.delegate import delegate, forward
 from sim2real.deploy.core.latency import BIN_NS, BINS, LatencyHistogram
 from sim2real.deploy.core.modes import (
     OVERRUN_RATE_LIMIT,
@@ -78,12 +78,12 @@ class Runtime:
 
     #: The state machine's class (:class:`.reference.ReferenceRuntime` takes its numpy reference).
     supervision_type = Supervision
-    run = delegate("run_loop", "run")  # RunLoop.run: ticks with the garbage collector frozen
+    run = forward("run_loop", "run")  # RunLoop.run: ticks with the garbage collector frozen
     gc_collections = delegate("run_loop", "gc_collections", writable=True)
     #: (envs, n) float32: the last tick's screened policy action in [-1, 1] (a view)
     action = delegate("supervision", "action")
-    mode_names = delegate("supervision", "mode_names")  # each env's mode, by name
-    cause_names = delegate("supervision", "cause_names")  # each env's fault cause, or None
+    mode_names = forward("supervision", "mode_names")  # each env's mode, by name
+    cause_names = forward("supervision", "cause_names")  # each env's fault cause, or None
 
     def __init__(
         self,

@@ -77,8 +77,6 @@ def _walking_not_filmed(result: dict) -> str | None:
 
 FILM_OF_KIND.register("arm", _filmed)
 FILM_OF_KIND.register("legged", _walking_not_filmed)
-FILM_OF_KIND.register("wheel_legged", _walking_not_filmed)
-FILM_OF_KIND.register("legged_arm", _walking_not_filmed)
 
 #: Frames per simulated second, pixels (width, height), x264 rate factor of the clips.
 FPS = 20.0
@@ -388,7 +386,7 @@ def film_campaign(
 
     from sim2real.robots import load_robot
 
-    no_film = FILM_OF_KIND.get(robot_kind(load_robot(template.robot)).name)
+    no_film = FILM_OF_KIND.get(robot_kind(load_robot(template.robot)))
 
     def render(r: dict) -> tuple[int, dict]:
         reason = no_film(r)  # the robot's kind's film face: why not, or None

@@ -152,7 +152,7 @@ class SessionBatch:
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
         #: the pushes of the policy's training domain (legged_gym's push_robots), or None
-        pushes = WORLD_OF_KIND.get(self.kind.name).domain_pushes(first.ranges)
+        pushes = WORLD_OF_KIND.get(self.kind).domain_pushes(first.ranges)
         self.pushes = None if pushes is None else DomainPushes(seeds, pushes, dt)
         #: the base estimate in the second after each push, against the truth (None: no pushes)
         self.push_response = None if pushes is None else PushResponse(self.pushes, dt)
@@ -215,7 +215,7 @@ class SessionBatch:
         self._next_event = self.every
         self._ruckig = mode != "torque"
         #: what the operator does with a robot of this kind (a legged one: stands it up)
-        self.operator = OPERATOR_OF_KIND.get(self.kind.name)
+        self.operator = OPERATOR_OF_KIND.get(self.kind)
         self.stop_replay = self.fall_replay = None
         if replay_stops:  # a legged robot's: its every stop lays it down
             self.stop_replay, self.fall_replay = self.operator.replays(self)

@@ -29,6 +29,8 @@ False, or not replayed: ``runtime_stop``.
 
 from __future__ import annotations
 
+from sim2real.deploy.backends.sim.fault_kinds import FAULT_KINDS
+
 #: A fall within this long of a push or a fault's end is attributed to it, s. Our choice: 2 s,
 #: longer than a walking robot's recovery steps after a shove (a few strides of 0.3-0.4 s).
 ATTRIBUTION_WINDOW = 2.0
@@ -37,7 +39,14 @@ ORIGINS = ("runtime_stop", "push", "fault", "policy", "runtime", "rare_draw", "u
 #: The share of a fall's replays that must fall for :func:`replay_origin` to name the policy
 #: (own loop) or the runtime (other noise draws). Our choice: most of them (3 of 5).
 REPLAY_SHARE = 0.5
-PUSH_KINDS = ("push", "cable")
+
+
+def push_kinds() -> tuple[str, ...]:
+    """The fault kinds that push or pull on the robot (``forces``: push, cable): a fall after one
+    has origin ``push``."""
+    return tuple(n for n, k in FAULT_KINDS.entries().items() if k.forces)
+
+
 #: A fall stop is false when the truth at the stop says upright (:func:`false_fall_stops`): its
 #: base tilted less than this share of the fall check's tilt limit (our choice: 0.3, 17 deg of
 #: the default 57, a walking quadruped's range; the H1s of the push soaks stopped sinking at
@@ -81,8 +90,8 @@ def attribute_falls(
             origin = "runtime_stop"
         elif any(p <= t <= p + ATTRIBUTION_WINDOW for p in pushes):
             origin, during = "push", "domain push"
-        elif any(f["kind"] in PUSH_KINDS for f in recent):
-            origin, during = "push", next(f["kind"] for f in recent if f["kind"] in PUSH_KINDS)
+        elif any(f["kind"] in (pushing := push_kinds()) for f in recent):
+            origin, during = "push", next(f["kind"] for f in recent if f["kind"] in pushing)
         elif recent:
             origin = "fault"
         else:

@@ -37,6 +37,7 @@ from pathlib import Path
 from sim2real.deploy.core.modes import FAULT_CAUSES, Mode
 from sim2real.deploy.core.stateful import parts_state_dict, prefixed
 from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.world.fault_draws import FAULT_DRAWS
 from sim2real.eval.world.fault_schedule import FAULT_SETTLE
 from sim2real.eval.world.session_ranges import SessionRanges
 from sim2real.robots.errors import Sim2RealError
@@ -312,7 +313,7 @@ class Session:
         rt, dt = batch.rt, batch.dt
         if not self.fault_armed:
             fault = self.schedule[self.fault_index]
-            if fault.kind == "push" and not self._pushable(fault.start):
+            if FAULT_DRAWS.get(fault.kind).only_while_running and not self._pushable(fault.start):
                 self._skip(fault, Mode(int(rt.mode[e])).name)
                 return
             batch.faults.arm(e, [fault])

@@ -54,5 +54,3 @@ class LiesDown:
 OPERATOR_OF_KIND: Faces = Faces("soak operator")
 OPERATOR_OF_KIND.register("arm", HoldsPose())
 OPERATOR_OF_KIND.register("legged", LiesDown())
-OPERATOR_OF_KIND.register("wheel_legged", OPERATOR_OF_KIND.get("legged"))
-OPERATOR_OF_KIND.register("legged_arm", OPERATOR_OF_KIND.get("legged"))

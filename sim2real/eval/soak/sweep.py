@@ -187,7 +187,7 @@ def _fits(q: Quantity, robot) -> bool:
     ranges = session_ranges(robot)
     if q.needs == "floor":
         return ranges.floor_friction is not None
-    world = WORLD_OF_KIND.get(robot_kind(robot).name)
+    world = WORLD_OF_KIND.get(robot_kind(robot))
     return world.domain_pushes(q.apply(ranges, q.levels[0])) is not None
 
 

@@ -15,7 +15,7 @@ Schedules are lists of :class:`sim2real.deploy.backends.sim.faults.Fault`; :func
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
 
 import mujoco
@@ -23,6 +23,12 @@ import numpy as np
 
 from sim2real.deploy.kinds import robot_kind
 from sim2real.eval.world.checks import check_range
+from sim2real.eval.world.fault_draws import (
+    FAULT_DRAWS,
+    DrawContext,
+    default_fault_kinds,
+    sensor_gap_kinds,
+)
 from sim2real.eval.world.world_faces import WORLD_OF_KIND
 from sim2real.robots import Robot
 
@@ -41,7 +47,9 @@ class FaultRanges:
         min_gap: Quiet time after each fault, s (at least ``FAULT_SETTLE + 1``; the runtime's
             response is judged ``FAULT_SETTLE`` s after the fault ends).
         warmup: No fault before this session time, s (ramp-in).
-        kinds: Kinds to draw from (``sim2real.deploy.backends.sim.faults.KINDS``).
+        kinds: Kinds to draw from, each with a registered draw
+            (:data:`~sim2real.eval.world.fault_draws.FAULT_DRAWS`); default: those
+            ``in_default_draw`` (the six built-in ones), in registration order.
         weights: Relative weights of ``kinds`` (None: equal).
         dropout: Duration of a dropout burst, as a fraction of the stale budget.
         stale: Duration of a stale (frozen) sensor frame, as a fraction of the stale budget.
@@ -63,7 +71,7 @@ class FaultRanges:
     mean_interval: float = 120.0
     min_gap: float = 5.0
     warmup: float = 10.0
-    kinds: tuple[str, ...] = ("dropout", "stale", "nan-action", "latency", "push", "cable")
+    kinds: tuple[str, ...] = field(default_factory=default_fault_kinds)
     weights: tuple[float, ...] | None = None
     dropout: tuple[float, float] = (0.2, 0.8)
     stale: tuple[float, float] = (0.2, 0.8)
@@ -76,9 +84,10 @@ class FaultRanges:
     cable_duration: tuple[float, float] = (10.0, 60.0)
 
     def __post_init__(self):
-        from sim2real.deploy.backends.sim.faults import KINDS
+        from sim2real.deploy.backends.sim.fault_kinds import FAULT_KINDS
 
         owner = "FaultRanges"
+        drawn = tuple(k for k in FAULT_DRAWS.names() if k in FAULT_KINDS.names())
         if not (np.isfinite(self.mean_interval) and self.mean_interval > 0):
             raise ValueError(f"{owner}.mean_interval: expected > 0 s, got {self.mean_interval}")
         if not (np.isfinite(self.min_gap) and self.min_gap >= FAULT_SETTLE + 1.0):
@@ -88,10 +97,10 @@ class FaultRanges:
         if not (np.isfinite(self.warmup) and self.warmup >= 0):
             raise ValueError(f"{owner}.warmup: expected >= 0 s, got {self.warmup}")
         if not self.kinds:
-            raise ValueError(f"{owner}.kinds: expected at least one of {KINDS}")
+            raise ValueError(f"{owner}.kinds: expected at least one of {drawn}")
         for kind in self.kinds:
-            if kind not in KINDS:
-                raise ValueError(f"{owner}.kinds: '{kind}' is unknown; expected one of {KINDS}")
+            if kind not in drawn:
+                raise ValueError(f"{owner}.kinds: '{kind}' is unknown; expected one of {drawn}")
         if self.weights is not None and (
             len(self.weights) != len(self.kinds)
             or not all(np.isfinite(w) and w >= 0 for w in self.weights)
@@ -122,9 +131,10 @@ class FaultRanges:
 
 #: s after a fault ends at which the soak harness judges the runtime's response.
 FAULT_SETTLE = 2.0
-#: The fault kinds that leave the estimator without a fresh reading for a while, sized against
-#: :func:`gap_ticks`; a session in which no whole tick fits draws none of them.
-SENSOR_GAP_KINDS = ("dropout", "stale", "latency")
+#: The built-in fault kinds that leave the estimator without a fresh reading for a while, sized
+#: against :func:`gap_ticks`; a session in which no whole tick fits draws none of them (every
+#: kind whose draw says ``sensor_gap``: :func:`~sim2real.eval.world.fault_draws.sensor_gap_kinds`).
+SENSOR_GAP_KINDS = sensor_gap_kinds()
 
 
 def gap_ticks(robot: Robot, latency_ticks: int) -> int:
@@ -295,13 +305,14 @@ def sample_fault_schedule(
     max_spike = gap_ticks(robot, sensors.latency_ticks)
     kinds, weights = _drawable_kinds(robot, ranges, sensors, max_spike)
     weights = weights / weights.sum()
-    cable = _CableBudget(robot, ranges, model)
+    context = DrawContext(robot, ranges, budget, max_spike, _CableBudget(robot, ranges, model))
+    draws = FAULT_DRAWS.entries()
     faults = []
     t = ranges.warmup
     while True:
         t += float(rng.exponential(ranges.mean_interval))
         kind = kinds[int(rng.choice(len(kinds), p=weights))]
-        length, magnitude = _draw(kind, rng, ranges, robot, budget, max_spike, cable)
+        length, magnitude = draws[kind].draw(context, rng)
         # start on a control tick, last whole ticks: the schedule means the same at any rate
         start = np.ceil(t / dt) * dt
         length = max(np.round(length / dt), 1.0) * dt
@@ -316,7 +327,8 @@ def sample_fault_schedule(
 def _drawable_kinds(robot: Robot, ranges: FaultRanges, sensors: SensorDraw, max_spike: int):
     """The fault kinds the session may draw and their weights (not normalized): no sensor gap
     where none fits the stale limit, none the kind's world refuses (a legged robot's: no cable
-    pull, :data:`~sim2real.eval.world.world_faces.WORLD_OF_KIND`).
+    pull, :data:`~sim2real.eval.world.world_faces.WORLD_OF_KIND`), none a kind's draw refuses
+    the robot (:attr:`~sim2real.eval.world.fault_draws.FaultDraw.refuses`).
 
     Raises:
         ValueError: the kinds left after those leave none to draw.
@@ -324,21 +336,30 @@ def _drawable_kinds(robot: Robot, ranges: FaultRanges, sensors: SensorDraw, max_
     kinds = ranges.kinds
     dt = robot.control_period
     weights = np.ones(len(kinds)) if ranges.weights is None else np.array(ranges.weights)
-    if max_spike < 1 and any(k in SENSOR_GAP_KINDS for k in kinds):
+    gaps = sensor_gap_kinds()
+    if max_spike < 1 and any(k in gaps for k in kinds):
         kinds, weights = _without(
-            kinds, weights, SENSOR_GAP_KINDS,
+            kinds, weights, gaps,
             f"robot {robot.name}: no sensor gap fits its stale limit "
             f"({robot.stale_limit} s at {1 / dt:g} Hz with "
             f"{sensors.latency_ticks} ticks of latency); the fault kinds {ranges.kinds} "
             "leave none to draw",
         )  # fmt: skip
-    refused = WORLD_OF_KIND.get(robot_kind(robot).name).refused_faults()
+    refused = WORLD_OF_KIND.get(robot_kind(robot)).refused_faults()
     for fault in [k for k in refused if k in kinds]:  # the kind's world's (a legged: no cable)
         kinds, weights = _without(
             kinds, weights, (fault,),
             f"robot {robot.name}: {refused[fault]}; the fault kinds {ranges.kinds} leave none "
             "to draw",
         )  # fmt: skip
+    draws = FAULT_DRAWS.entries()
+    for fault in list(kinds):  # a kind's own refusal (a camera fault: a robot without one)
+        why = draws[fault].refuses(robot) if draws[fault].refuses is not None else None
+        if why is not None:
+            kinds, weights = _without(
+                kinds, weights, (fault,),
+                f"robot {robot.name}: {why}; the fault kinds {ranges.kinds} leave none to draw",
+            )  # fmt: skip
     return kinds, weights
 
 
@@ -359,31 +380,6 @@ class _CableBudget:
         return float(self.budget[k])
 
 
-def _draw(kind: str, rng, ranges: FaultRanges, robot: Robot, budget: float, max_spike: int, cable):
-    """A fault of ``kind``'s ``(length s, magnitude or None)``, drawn from ``ranges`` (its
-    random draws in the schedule's order)."""
-    dt = robot.control_period
-    magnitude = None
-    if kind == "dropout":
-        length = budget * float(rng.uniform(*ranges.dropout))
-    elif kind == "stale":
-        length = budget * float(rng.uniform(*ranges.stale))
-    elif kind == "nan-action":
-        length = dt * int(rng.integers(ranges.nan_ticks[0], ranges.nan_ticks[1] + 1))
-    elif kind == "latency":
-        fraction = float(rng.uniform(*ranges.latency_ticks))
-        magnitude = float(max(1, round(max_spike * fraction)))
-        length = float(rng.uniform(*ranges.latency_duration))
-    elif kind == "push":
-        magnitude = float(rng.uniform(*ranges.push_force))
-        length = float(rng.uniform(*ranges.push_duration))
-    else:  # cable
-        fraction = float(rng.uniform(*ranges.cable_force))
-        length = float(rng.uniform(*ranges.cable_duration))
-        magnitude = fraction * cable(length)
-    return length, magnitude
-
-
 def fault_to_dict(fault) -> dict:
     """A :class:`sim2real.deploy.backends.sim.faults.Fault` as a JSON-ready dict."""
     d = asdict(fault)
@@ -399,12 +395,14 @@ def fault_from_dict(data: dict):
     Raises:
         ValueError: a missing or invalid field (named).
     """
-    from sim2real.deploy.backends.sim.faults import KINDS, Fault
+    from sim2real.deploy.backends.sim.faults import FAULT_KINDS, Fault
 
     try:
         kind = str(data["kind"])
-        if kind not in KINDS:
-            raise ValueError(f"fault kind '{kind}' is unknown; expected one of {KINDS}")
+        if kind not in FAULT_KINDS.names():
+            raise ValueError(
+                f"fault kind '{kind}' is unknown; expected one of {FAULT_KINDS.names()}"
+            )
         envs = data.get("envs")
         direction = data.get("direction")
         magnitude = data.get("magnitude")

@@ -99,7 +99,7 @@ def session_ranges(robot: Robot, mean_interval: float | None = None) -> SessionR
 
     Raises:
         ValueError: the robot's kind registered no range defaults."""
-    defaults = SESSION_RANGES.get(robot_kind(robot).name)
+    defaults = SESSION_RANGES.get(robot_kind(robot))
     return defaults(robot, fault_ranges(robot, mean_interval))
 
 
@@ -126,8 +126,6 @@ def legged_ranges(robot: Robot, faults: FaultRanges) -> SessionRanges:
 SESSION_RANGES: Faces = Faces("soak's range defaults")
 SESSION_RANGES.register("arm", arm_ranges)
 SESSION_RANGES.register("legged", legged_ranges)
-SESSION_RANGES.register("wheel_legged", legged_ranges)
-SESSION_RANGES.register("legged_arm", legged_ranges)
 
 
 #: The nominal encoder noise the specified range is drawn about, rad: the specified 0.005 on

@@ -2,7 +2,7 @@
 
 :class:`~sim2real.eval.world.terrain_ranges.TerrainRanges` is legged_gym's ``terrain`` description
 as the soak draws from it (:mod:`sim2real.eval.world.terrain_ranges`); :func:`sample_terrain` draws
-a session's :class:`TerrainDraw` (a kind of :data:`~sim2real.eval.world.terrain_tiles.KINDS` and a
+a session's :class:`TerrainDraw` (a kind of :data:`~sim2real.eval.world.tile_generators.TILE_GENERATORS` and a
 difficulty, from ``terrain_proportions`` and the levels); :func:`ground_map` lays out its ``tiles x
 tiles`` grid of that kind and difficulty (each tile its own random parts) inside a flat border, the
 robot's start (the world origin) at the centre of the middle tile's platform; :func:`add_ground`
@@ -40,17 +40,13 @@ from sim2real.eval.world.terrain_ranges import (  # noqa: F401 - importable from
     WALKS,
     TerrainRanges,
 )
-from sim2real.eval.world.terrain_tiles import (
-    KINDS,
-    difficulty_terms,
-    make_tile,
-)
+from sim2real.eval.world.tile_generators import make_tile, tile_generator, tile_kinds
 
-#: The kinds a trimesh terrain lays as boxes: their faces are steeper than any ``slope_treshold``
-#: (a 0.05 m step over legged_gym's 0.1 m cell: 0.5; its trimesh makes faces above 0.75 vertical).
-#: A height field at 0.1 m gives a step a 45-degree ramp; a finer one (we tried 0.025 m) holds a
-#: foot sphere in its many prisms' contacts (HIMLoco's Go2 stood still on a flat platform).
-STEPPED_KINDS = ("stairs_up", "stairs_down", "discrete")
+#: A trimesh terrain lays the kinds whose generator is ``stepped`` as boxes (the stairs and
+#: ``discrete``): their faces are steeper than any ``slope_treshold`` (a 0.05 m step over
+#: legged_gym's 0.1 m cell: 0.5; its trimesh makes faces above 0.75 vertical). A height field at
+#: 0.1 m gives a step a 45-degree ramp; a finer one (we tried 0.025 m) holds a foot sphere in its
+#: many prisms' contacts (HIMLoco's Go2 stood still on a flat platform).
 #: Depth of the height field's base below its lowest point, m (MuJoCo's ``size[3]``).
 BASE_DEPTH = 1.0
 #: The flat ground around the height field: four boxes of top 0 reaching this far, m (ours: a
@@ -67,7 +63,8 @@ SPAWN_HALF_SIDE = 0.3
 
 @dataclass(frozen=True)
 class TerrainDraw:
-    """A session's ground: its tiles' ``kind`` (:data:`KINDS`), ``difficulty`` in [0, 1),
+    """A session's ground: its tiles' ``kind`` (a registered one,
+    :func:`~sim2real.eval.world.tile_generators.tile_kinds`), ``difficulty`` in [0, 1),
     ``level`` (the row it came from; None for a stated size), the ``ranges`` laid out."""
 
     kind: str
@@ -76,22 +73,15 @@ class TerrainDraw:
     ranges: TerrainRanges = field(default_factory=TerrainRanges)
 
     def __post_init__(self):
-        if self.kind not in KINDS:
-            raise ValueError(
-                f"terrain kind '{self.kind}' is not one the soak builds; expected one of {list(KINDS)}"
-            )
+        tile_generator(self.kind)  # a kind the soak builds, or ValueError naming those it does
 
     @property
     def label(self) -> str:
-        """``kind@level`` or ``kind:size`` (the step height in m, the slope in degrees)."""
+        """``kind@level`` or ``kind:size`` (its generator's ``size``: the step height in m, the
+        slope in degrees)."""
         if self.level is not None:
             return f"{self.kind}@{self.level}"
-        t = difficulty_terms(self.difficulty)
-        if self.kind.startswith("stairs"):
-            return f"{self.kind}:{t['step_height']:.3g}"
-        if "slope" in self.kind:
-            return f"{self.kind}:{math.degrees(math.atan(t['slope'])):.3g}deg"
-        return f"{self.kind}:{self.difficulty:.3g}"
+        return f"{self.kind}:{tile_generator(self.kind).size(self.difficulty)}"
 
     def apply(self, spec: mujoco.MjSpec, rng: np.random.Generator) -> GroundMap:
         """Lay this ground into plant ``spec``: :func:`apply_terrain`."""
@@ -126,7 +116,7 @@ def sample_terrain(rng: np.random.Generator, ranges: TerrainRanges) -> TerrainDr
     else:
         choice = float(rng.uniform(0.0, 1.0))
     kind = legged_gym_kind(choice, shares)
-    if kind not in KINDS:  # within terrain_choice.ROUNDING past the last share: the one below
+    if kind not in tile_kinds():  # within terrain_choice.ROUNDING past the last share: below
         kind = legged_gym_kind(np.nextafter(cumulative_proportions(shares)[-1], 0.0), shares)
     if not ranges.curriculum:
         return TerrainDraw(kind, float(rng.choice(RANDOM_DIFFICULTIES)), None, ranges)
@@ -187,7 +177,7 @@ def ground_map(draw: TerrainDraw, rng: np.random.Generator) -> GroundMap:
             units[border + i * n : border + (i + 1) * n, border + j * n : border + (j + 1) * n] = (
                 tile
             )
-    stepped = r.mesh_type == "trimesh" and draw.kind in STEPPED_KINDS
+    stepped = r.mesh_type == "trimesh" and tile_generator(draw.kind).stepped
     i0, j0 = start_tile(draw)
     sx, sy = border + i0 * n + n // 2, border + j0 * n + n // 2
     return GroundMap(units * vs, -sx * hs, -sy * hs, hs, stepped)
@@ -315,9 +305,11 @@ def apply_terrain(spec: mujoco.MjSpec, draw: TerrainDraw, rng: np.random.Generat
 
 def parse_terrain(text: str, ranges: TerrainRanges | None = None) -> TerrainDraw:
     """A tile stated on a command line: ``KIND@LEVEL`` (difficulty ``LEVEL / num_rows``) or
-    ``KIND:SIZE``: stairs by their step height (m, ``stairs_up:0.10``), slopes by their angle
-    (``slope_up:15deg``) or gradient, ``discrete`` by its obstacles' height (m); the difficulty
-    is legged_gym's that gives it (module :mod:`~sim2real.eval.world.terrain_tiles`).
+    ``KIND:SIZE`` (the kind's generator's ``difficulty``,
+    :mod:`~sim2real.eval.world.tile_generators`): stairs by their step height (m,
+    ``stairs_up:0.10``), slopes by their angle (``slope_up:15deg``) or gradient, ``discrete`` by
+    its obstacles' height (m); the difficulty is legged_gym's that gives it (module
+    :mod:`~sim2real.eval.world.terrain_tiles`).
 
     Raises:
         ValueError: an unknown kind (named, with those the soak builds), a malformed size or
@@ -326,10 +318,10 @@ def parse_terrain(text: str, ranges: TerrainRanges | None = None) -> TerrainDraw
     # one stated tile: the grid of it (a curriculum walk's column is a soak session's)
     ranges = TerrainRanges() if ranges is None else dataclasses.replace(ranges, walk="grid")
     kind, sep, rest = text.replace("@", ":@", 1).partition(":")
-    if kind not in KINDS:
+    if kind not in tile_kinds():
         raise ValueError(
             f"--terrain {text}: terrain kind '{kind}' is not one the soak builds; expected one "
-            f"of {list(KINDS)}"
+            f"of {list(tile_kinds())}"
         )
     if not sep:
         raise ValueError(
@@ -342,13 +334,7 @@ def parse_terrain(text: str, ranges: TerrainRanges | None = None) -> TerrainDraw
             if not 0 <= level < ranges.num_rows:
                 raise ValueError
             return TerrainDraw(kind, level / ranges.num_rows, level, ranges)
-        if "slope" in kind:
-            g = math.tan(math.radians(float(rest[:-3]))) if rest.endswith("deg") else float(rest)
-            d = g / 0.4
-        elif kind.startswith("stairs"):
-            d = (float(rest) - 0.05) / 0.18
-        else:
-            d = (float(rest) - 0.05) / 0.1
+        d = tile_generator(kind).difficulty(rest)
     except ValueError:
         raise ValueError(
             f"--terrain {text}: expected KIND:SIZE (a number; slopes may end in deg) or "

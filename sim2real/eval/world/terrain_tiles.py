@@ -22,9 +22,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-#: The tile kinds the soak builds, each with the index of its share in legged_gym's
+#: The built-in tile kinds, each with the index of its share in legged_gym's
 #: ``terrain_proportions`` ([smooth slope, rough slope, stairs up, stairs down, discrete]);
 #: ``slope_up`` and ``slope_down`` split the smooth slopes' share in halves, as legged_gym does.
+#: Each is registered with its builder (:mod:`sim2real.eval.world.tile_generators`).
 KINDS = {
     "slope_up": 0, "slope_down": 0, "rough_slope": 1, "stairs_up": 2, "stairs_down": 3,
     "discrete": 4,
@@ -110,37 +111,34 @@ def _pyramid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     return (c0 - np.abs(c0 - np.arange(n0))) / c0, (c1 - np.abs(c1 - np.arange(n1))) / c1
 
 
-def platform_mask(kind: str, pixels: int, hs: float) -> np.ndarray:
-    """(pixels, pixels) bool: the samples of a ``kind`` tile's flat platform at its centre, where
-    the robot starts; the rest is its feature. Stairs: the last ring's square (legged_gym's
-    ``pyramid_stairs_terrain`` loop: 2.6 m at 0.1 m, nine 0.30 m steps); slopes (smooth or
-    rough): where the pyramid ``x * y`` reaches its clip at the 3-m platform's corner
-    (``pyramid_sloped_terrain``: a square's corners at 1.5 m, along the axes 2.4 m: the clip is
-    a level of ``x * y``), whatever the gradient (at difficulty 0 the same region, flat
-    throughout); ``discrete``: the 3-m square it zeroes (``discrete_obstacles_terrain``).
+def stairs_platform(pixels: int, hs: float) -> np.ndarray:
+    """(pixels, pixels) bool: a stairs tile's flat platform, the last ring's square (legged_gym's
+    ``pyramid_stairs_terrain`` loop: 2.6 m at 0.1 m, nine 0.30 m steps)."""
+    out = np.zeros((pixels, pixels), dtype=bool)
+    a0, b0, a1, b1 = (0, pixels, 0, pixels)
+    for a0, b0, a1, b1 in _stair_rings((pixels, pixels), hs):  # noqa: B007 - the last ring's
+        pass
+    out[a0:b0, a1:b1] = True
+    return out
 
-    Raises:
-        ValueError: a kind the soak does not build.
-    """
-    if kind not in KINDS:
-        raise ValueError(
-            f"terrain kind '{kind}' is not one the soak builds; expected one of {list(KINDS)}"
-        )
-    shape = (pixels, pixels)
-    out = np.zeros(shape, dtype=bool)
-    if kind.startswith("stairs"):
-        a0, b0, a1, b1 = (0, pixels, 0, pixels)
-        for a0, b0, a1, b1 in _stair_rings(shape, hs):  # noqa: B007 - the last ring's
-            pass
-        out[a0:b0, a1:b1] = True
-    elif kind == "discrete":
-        p = _units(PLATFORM, hs)
-        out[(pixels - p) // 2 : (pixels + p) // 2, (pixels - p) // 2 : (pixels + p) // 2] = True
-    else:
-        x, y = _pyramid(shape)
-        half = int(PLATFORM / hs / 2)
-        corner = x[pixels // 2 - half] * y[pixels // 2 - half]
-        out[:] = x[:, None] * y[None, :] >= corner - 1e-12
+
+def slope_platform(pixels: int, hs: float) -> np.ndarray:
+    """(pixels, pixels) bool: a slope tile's (smooth or rough) flat platform, where the pyramid
+    ``x * y`` reaches its clip at the 3-m platform's corner (``pyramid_sloped_terrain``: a
+    square's corners at 1.5 m, along the axes 2.4 m: the clip is a level of ``x * y``), whatever
+    the gradient (at difficulty 0 the same region, flat throughout)."""
+    x, y = _pyramid((pixels, pixels))
+    half = int(PLATFORM / hs / 2)
+    corner = x[pixels // 2 - half] * y[pixels // 2 - half]
+    return x[:, None] * y[None, :] >= corner - 1e-12
+
+
+def square_platform(pixels: int, hs: float) -> np.ndarray:
+    """(pixels, pixels) bool: the 3-m square at the centre a ``discrete`` tile zeroes
+    (``discrete_obstacles_terrain``)."""
+    out = np.zeros((pixels, pixels), dtype=bool)
+    p = _units(PLATFORM, hs)
+    out[(pixels - p) // 2 : (pixels + p) // 2, (pixels - p) // 2 : (pixels + p) // 2] = True
     return out
 
 
@@ -159,27 +157,31 @@ def discrete_obstacles(hf: np.ndarray, height: float, hs: float, vs: float, rng)
     hf[(n0 - p) // 2 : (n0 + p) // 2, (n1 - p) // 2 : (n1 + p) // 2] = 0
 
 
-def make_tile(
-    kind: str, difficulty: float, pixels: int, hs: float, vs: float, rng: np.random.Generator
-) -> np.ndarray:
-    """One ``(pixels, pixels)`` int16 tile of ``kind`` (:data:`KINDS`) at ``difficulty``
-    (module docstring), random parts from ``rng``.
+def slope_tile(sign: float, rough: bool = False):
+    """The builder of a slope tile (:class:`~sim2real.eval.world.tile_generators.TileGenerator`'s
+    ``build``): a pyramid of gradient ``sign * slope`` at the difficulty (negative: a pit, the
+    robot climbs out), with ``rough``: roughness on it (its random parts from ``rng``)."""
 
-    Raises:
-        ValueError: a kind the soak does not build (named, with the kinds it builds).
-    """
-    if kind not in KINDS:
-        raise ValueError(
-            f"terrain kind '{kind}' is not one the soak builds; expected one of {list(KINDS)}"
-        )
-    hf = np.zeros((pixels, pixels), dtype=np.int16)
-    t = difficulty_terms(difficulty)
-    if kind in ("slope_up", "slope_down", "rough_slope"):
-        pyramid_slope(hf, -t["slope"] if kind == "slope_up" else t["slope"], hs, vs)
-        if kind == "rough_slope":
+    def build(hf: np.ndarray, difficulty: float, hs: float, vs: float, rng) -> None:
+        t = difficulty_terms(difficulty)
+        pyramid_slope(hf, sign * t["slope"], hs, vs)
+        if rough:
             random_uniform(hf, t["amplitude"], hs, vs, rng)
-    elif kind in ("stairs_up", "stairs_down"):
-        pyramid_stairs(hf, -t["step_height"] if kind == "stairs_up" else t["step_height"], hs, vs)
-    else:
-        discrete_obstacles(hf, t["obstacle_height"], hs, vs, rng)
-    return hf
+
+    return build
+
+
+def stairs_tile(sign: float):
+    """The builder of a stairs tile: steps of ``sign * step_height`` at the difficulty (negative:
+    down into a pit, the robot climbs out)."""
+
+    def build(hf: np.ndarray, difficulty: float, hs: float, vs: float, rng) -> None:
+        pyramid_stairs(hf, sign * difficulty_terms(difficulty)["step_height"], hs, vs)
+
+    return build
+
+
+def discrete_tile(hf: np.ndarray, difficulty: float, hs: float, vs: float, rng) -> None:
+    """The builder of a ``discrete`` tile: obstacles of the difficulty's height (random parts
+    from ``rng``)."""
+    discrete_obstacles(hf, difficulty_terms(difficulty)["obstacle_height"], hs, vs, rng)

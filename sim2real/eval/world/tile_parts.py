@@ -5,7 +5,7 @@ centre of a tile; the tile's feature surrounds it out to the tile's rim: the ste
 tile, the slope of a smooth or rough slope, the obstacle field of a discrete one. A
 :class:`TileLayout` answers, for world points ``(x, y)`` (m), which of the session's
 ``rows x cols`` tiles they are on (its index ``i * cols + j``; -1 off the tiles, on the flat
-border around them) and whether on its platform (:func:`~sim2real.eval.world.terrain_tiles.
+border around them) and whether on its platform (:func:`~sim2real.eval.world.tile_generators.
 platform_mask`, the generator's own region) or its feature. A point belongs to its nearest
 sample of the ground's grid (a stepped ground's box top about it; a height field's vertex).
 """
@@ -18,15 +18,10 @@ import numpy as np
 
 from sim2real.eval.world.terrain import TerrainDraw
 from sim2real.eval.world.terrain_layout import start_tile, tile_counts, tile_grid
-from sim2real.eval.world.terrain_tiles import platform_mask
+from sim2real.eval.world.tile_generators import platform_mask, tile_generator
 
 #: The parts of a tile a point can be on: its central platform, its feature, or off the tiles.
 PARTS = ("platform", "feature", "off")
-#: What the feature of each kind is, for the report's words.
-FEATURE_NOUNS = {
-    "stairs_up": "steps", "stairs_down": "steps", "slope_up": "slope", "slope_down": "slope",
-    "rough_slope": "rough slope", "discrete": "obstacles",
-}  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,7 +29,7 @@ class TileLayout:
     """The tiles of a session's ground (module docstring).
 
     Attributes:
-        kind: The tiles' kind (:data:`~sim2real.eval.world.terrain_tiles.KINDS`).
+        kind: The tiles' kind (:data:`~sim2real.eval.world.tile_generators.TILE_GENERATORS`).
         origin: m, the world ``(x, y)`` of the first tile's first sample.
         spacing: m between samples (``horizontal_scale``).
         n: Samples along a tile's side.
@@ -77,8 +72,8 @@ class TileLayout:
 
     @property
     def feature(self) -> str:
-        """The feature's noun (``steps``, ``slope``, ...: :data:`FEATURE_NOUNS`)."""
-        return FEATURE_NOUNS[self.kind]
+        """The feature's noun (``steps``, ``slope``, ...: its generator's ``feature``)."""
+        return tile_generator(self.kind).feature
 
     def centre(self, row: int, col: int) -> np.ndarray:
         """(2,) m, the world ``(x, y)`` of tile ``(row, col)``'s centre sample (legged_gym's

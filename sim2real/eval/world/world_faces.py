@@ -48,5 +48,3 @@ class FreeWorld:
 WORLD_OF_KIND: Faces = Faces("soak world")
 WORLD_OF_KIND.register("arm", TetheredWorld())
 WORLD_OF_KIND.register("legged", FreeWorld())
-WORLD_OF_KIND.register("wheel_legged", WORLD_OF_KIND.get("legged"))
-WORLD_OF_KIND.register("legged_arm", WORLD_OF_KIND.get("legged"))

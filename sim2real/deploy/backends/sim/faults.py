@@ -1,7 +1,8 @@
 """Fault injection on the simulated robot: the faults the runtime must answer, on a schedule.
 
-A fault is ``KIND@START[:DURATION]`` (seconds of simulated time; DURATION defaults to
-``DEFAULT_DURATION``):
+A fault is ``KIND[=MAGNITUDE]@START[:DURATION]`` (seconds of simulated time; DURATION defaults to
+``DEFAULT_DURATION``), KIND one of the registered fault kinds
+(:data:`~sim2real.deploy.backends.sim.fault_kinds.FAULT_KINDS`, where each says what it does):
 
 - ``dropout``: every encoder reading is lost (the estimator must predict only, then stop safely when
   the data is stale longer than ``Robot.stale_limit``).
@@ -20,6 +21,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2real.deploy.backends.sim.fault_kinds import (  # noqa: F401 - importable from here too
+    CABLE_FORCE,
+    FAULT_KINDS,
+    KINDS,
+    LATENCY_SPIKE_TICKS,
+    PUSH_FORCE,
+    fault_kind,
+)
 from sim2real.deploy.core.backend import SensorFrame
 from sim2real.deploy.core.stateful import (
     StateDictError,
@@ -33,20 +42,15 @@ from sim2real.deploy.core.stateful import (
     to_json,
 )
 
-KINDS = ("dropout", "stale", "nan-action", "latency", "push", "cable")
 DEFAULT_DURATION = 0.5  # s
-LATENCY_SPIKE_TICKS = 10  # control ticks (50 ms at 200 Hz)
-PUSH_FORCE = 20.0  # N, a firm shove by hand
-CABLE_FORCE = 10.0  # N, a moderate sustained pull (a cable or hose of about 1 kg)
-#: The kinds that take a magnitude, and its unit.
-MAGNITUDE_UNITS = {"latency": "control ticks", "push": "N", "cable": "N"}
 
 
 @dataclass(frozen=True)
 class Fault:
-    """One scheduled fault: ``kind`` from ``KINDS`` over [start, start + duration) s, on ``envs``
-    (None: every env), with an optional ``magnitude`` (push or cable force N / latency ticks) and,
-    for ``cable``, an optional unit ``direction`` of the pull (world frame; None: along gravity)."""
+    """One scheduled fault: ``kind`` (a registered fault kind, :data:`FAULT_KINDS`) over
+    [start, start + duration) s, on ``envs`` (None: every env), with an optional ``magnitude``
+    (push or cable force N / latency ticks) and, for ``cable``, an optional unit ``direction`` of
+    the pull (world frame; None: along gravity)."""
 
     kind: str
     start: float
@@ -66,8 +70,9 @@ class Fault:
         form = "KIND[=MAGNITUDE]@SECONDS[:DURATION]"
         head, sep, when = text.partition("@")
         kind, eq, size = head.partition("=")
-        if not sep or kind not in KINDS:
-            raise ValueError(f"--inject {text!r}: expected {form} with KIND one of {KINDS}")
+        names = FAULT_KINDS.names()
+        if not sep or kind not in names:
+            raise ValueError(f"--inject {text!r}: expected {form} with KIND one of {names}")
         start, _, duration = when.partition(":")
         try:
             t0 = float(start)
@@ -80,15 +85,18 @@ class Fault:
         if t0 < 0 or dt <= 0:
             raise ValueError(f"--inject {text!r}: expected SECONDS >= 0 and DURATION > 0")
         if magnitude is not None:
-            if kind not in MAGNITUDE_UNITS:
+            spec = fault_kind(kind)
+            if spec.magnitude_unit is None:
+                sized = [k.name for k in FAULT_KINDS.entries().values() if k.magnitude_unit]
                 raise ValueError(
-                    f"--inject {text!r}: {kind} takes no MAGNITUDE (only "
-                    f"{', '.join(MAGNITUDE_UNITS)})"
+                    f"--inject {text!r}: {kind} takes no MAGNITUDE (only {', '.join(sized)})"
                 )
             if not (magnitude > 0 and np.isfinite(magnitude)):
                 raise ValueError(f"--inject {text!r}: expected MAGNITUDE > 0")
-            if kind == "latency" and magnitude != int(magnitude):
-                raise ValueError(f"--inject {text!r}: latency MAGNITUDE is whole control ticks")
+            if spec.whole_magnitude and magnitude != int(magnitude):
+                raise ValueError(
+                    f"--inject {text!r}: {kind} MAGNITUDE is whole {spec.magnitude_unit}"
+                )
         return cls(kind, t0, dt, magnitude=magnitude)
 
     def active(self, t: float) -> bool:
@@ -108,7 +116,8 @@ class FaultInjector:
         self._frozen: SensorFrame | None = None
         self._active: set[int] = set()
         self.log: list[dict] = []
-        self._has_push = any(f.kind in ("push", "cable") for f in self.faults)
+        self._kinds = [fault_kind(f.kind) for f in self.faults]
+        self._has_push = any(k.forces for k in self._kinds)
 
     # ------------------------------------------------------------------ state
     def state_dict(self, env: int | None = None) -> dict:
@@ -190,19 +199,9 @@ class FaultInjector:
                 self._active.discard(i)
             if not on:
                 continue
-            envs = self._envs(f)
-            if f.kind == "dropout":
-                b.dropout_probability[envs] = 1.0
-            elif f.kind == "latency":
-                spike = int(f.magnitude or LATENCY_SPIKE_TICKS)
-                b.latency_ticks[envs] = np.minimum(
-                    self._base_latency[envs] + spike, b.max_latency_ticks
-                )
-            elif f.kind == "push":
-                push[envs, 0] = f.magnitude or PUSH_FORCE
-            elif f.kind == "cable":
-                for e in envs:
-                    push[e] += (f.magnitude or CABLE_FORCE) * self._cable_direction(f, e)
+            kind = self._kinds[i]
+            if kind.plant is not None:
+                kind.plant(self, f, self._envs(f), push)
         if self._has_push:
             for e in range(b.envs):
                 b.set_external_force(e, push[e])
@@ -220,37 +219,34 @@ class FaultInjector:
         self._frozen = None
         self._active.clear()
 
-    def _cable_direction(self, f: Fault, env: int) -> np.ndarray:
-        """Unit vector (3,) of a cable's pull: ``f.direction``, or along the env's gravity."""
-        if f.direction is not None:
-            d = np.asarray(f.direction, dtype=np.float64)
-        else:
-            d = np.array(self.backend.models[env].opt.gravity, dtype=np.float64)
-        norm = np.linalg.norm(d)
-        if not norm > 0.0:
-            raise ValueError(f"fault {f}: the cable direction {d.tolist()} has no length")
-        return d / norm
+    @property
+    def base_latency(self) -> np.ndarray:
+        """(envs,) int64, the backend's encoder latency without faults, control ticks (a view:
+        read it, do not write it)."""
+        return self._base_latency
+
+    def frozen_frame(self, frame: SensorFrame) -> SensorFrame:
+        """A copy of ``frame`` taken at the first call while frame faults are in force, the same
+        copy until none is (a ``stale`` fault's old readings)."""
+        if self._frozen is None:
+            self._frozen = SensorFrame(**{k: v.copy() for k, v in frame.arrays().items()})
+        return self._frozen
 
     def filter_frame(self, t: float, frame: SensorFrame) -> SensorFrame:
-        """Replace the frame with a frozen copy while a ``stale`` fault is active."""
-        if any(f.kind == "stale" and f.active(t) for f in self.faults):
-            if self._frozen is None:
-                self._frozen = SensorFrame(**{k: v.copy() for k, v in frame.arrays().items()})
-            frozen = self._frozen
-            envs = [
-                e for f in self.faults if f.kind == "stale" and f.active(t) for e in self._envs(f)
-            ]
-            frame.position[envs] = frozen.position[envs]
-            frame.position_stamp[envs] = frozen.position_stamp[envs]
-            if frame.velocity is not None and frozen.velocity is not None:
-                frame.velocity[envs] = frozen.velocity[envs]
-            return frame
-        self._frozen = None
+        """Apply the frame faults in force (``stale``: the frozen copy's readings on their
+        envs); with none in force, the frozen copy is dropped."""
+        held = False
+        for f, kind in zip(self.faults, self._kinds, strict=True):
+            if kind.frame is not None and f.active(t):
+                kind.frame(self, f, self._envs(f), frame)
+                held = True
+        if not held:
+            self._frozen = None
         return frame
 
     def filter_action(self, t: float, action: np.ndarray) -> np.ndarray:
-        """NaN actions while a ``nan-action`` fault is active."""
-        for f in self.faults:
-            if f.kind == "nan-action" and f.active(t):
-                action[self._envs(f)] = np.nan
+        """Apply the action faults in force (``nan-action``: NaN actions on their envs)."""
+        for f, kind in zip(self.faults, self._kinds, strict=True):
+            if kind.action is not None and f.active(t):
+                kind.action(self, f, self._envs(f), action)
         return action

@@ -5,8 +5,8 @@ each with its own ``MjData`` and, where the soak harness randomizes dynamics, it
 Per control tick: ``read()``, ``write(command)`` and ``advance()``, which runs ``decimation``
 physics steps and integrates the two-node motor thermal model.
 
-Composed of stage objects with their own state, to which it delegates by name
-(:func:`~sim2real.deploy.core.delegate.delegate`): the encoders and temperature reports
+Composed of stage objects with their own state, to which it delegates by name (data by
+:func:`~sim2real.deploy.core.delegate.delegate`, methods by ``forward``): the encoders and temperature reports
 (:mod:`.sensors`), a floating base's IMU and foot contact (:mod:`.legged_sensors`), the drives
 (:mod:`.drives`), the thermal and actuator models, the pushes and forces (:mod:`.disturbances`),
 the true state, for evaluation only (:mod:`.truth`); the state dict gathers theirs (:mod:`.state`).
@@ -51,7 +51,7 @@ from sim2real.deploy.backends.sim.sensors import JointSensorModel
 from sim2real.deploy.backends.sim.state import MujocoState, PlantState
 from sim2real.deploy.backends.sim.truth import TrueState
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame
-from sim2real.deploy.core.delegate import delegate
+from sim2real.deploy.core.delegate import delegate, forward
 from sim2real.deploy.kernels import all_finite, copy_finite
 from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import CONTROL_MODES, Robot
@@ -80,11 +80,11 @@ class SimBackend(BackendLifecycle):
     """
 
     # the true state, for evaluation only; the grounds under the envs (None: the plane)
-    true_position = delegate("truth", "position")
-    true_velocity = delegate("truth", "velocity")
-    true_base_state = delegate("truth", "base_state")
-    end_effector_position = delegate("truth", "end_effector_position")
-    ground_height = delegate("truth", "ground_height")
+    true_position = forward("truth", "position")
+    true_velocity = forward("truth", "velocity")
+    true_base_state = forward("truth", "base_state")
+    end_effector_position = forward("truth", "end_effector_position")
+    ground_height = forward("truth", "ground_height")
     grounds = delegate("truth", "grounds", writable=True)
     # the joint sensors' settings and streams (write the arrays in place to inject faults)
     noise_sigma = delegate("joint_sensors", "noise_sigma")
@@ -95,17 +95,17 @@ class SimBackend(BackendLifecycle):
     encoder_quantum = delegate("joint_sensors", "encoder_quantum")
     temperature_resolution = delegate("joint_sensors", "temperature_resolution")
     encoder_every = delegate("joint_sensors", "encoder_every")
-    set_sensor_streams = delegate("joint_sensors", "set_streams")
+    set_sensor_streams = forward("joint_sensors", "set_streams")
     # the drives: present torque limits (envs, n) N m and their derating
     effort_limit = delegate("drives", "effort_limit")
     derating = delegate("drives", "derating")
     # the pushes and forces (SimulatedPlant's fault hooks)
-    set_base_velocity = delegate("disturbances", "set_base_velocity")
-    push_base = delegate("disturbances", "push_base")
-    push_wrench = delegate("disturbances", "push_wrench")
-    set_push_wrench = delegate("disturbances", "set_push_wrench")
-    set_base_wrench = delegate("disturbances", "set_base_wrench")
-    set_external_force = delegate("disturbances", "set_external_force")
+    set_base_velocity = forward("disturbances", "set_base_velocity")
+    push_base = forward("disturbances", "push_base")
+    push_wrench = forward("disturbances", "push_wrench")
+    set_push_wrench = forward("disturbances", "set_push_wrench")
+    set_base_wrench = forward("disturbances", "set_base_wrench")
+    set_external_force = forward("disturbances", "set_external_force")
     free_base = delegate("disturbances", "free_base")
 
     def __init__(

@@ -20,8 +20,6 @@ def no_extras(plant, robot) -> None:
 PLANT_EXTRAS: Faces = Faces("plant's extras")
 PLANT_EXTRAS.register("arm", no_extras)
 PLANT_EXTRAS.register("legged", BaseSensorModel)
-PLANT_EXTRAS.register("wheel_legged", BaseSensorModel)
-PLANT_EXTRAS.register("legged_arm", BaseSensorModel)
 
 
 def plant_extras(plant, robot) -> BaseSensorModel | None:
@@ -30,4 +28,4 @@ def plant_extras(plant, robot) -> BaseSensorModel | None:
 
     Raises:
         ValueError: the robot's kind registered no plant extras."""
-    return PLANT_EXTRAS.get(robot_kind(robot).name)(plant, robot)
+    return PLANT_EXTRAS.get(robot_kind(robot))(plant, robot)

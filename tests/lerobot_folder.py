@@ -104,3 +104,81 @@ def write_act_folder(
     if train_env_fps is not None:
         (folder / "train_config.json").write_text(json.dumps({"env": {"fps": train_env_fps}}))
     return folder
+
+
+def write_chunk_onnx(
+    path: Path,
+    *,
+    chunk_size: int = 4,
+    n_action_steps: int = 2,
+    coeff=None,
+    fps: float = 30.0,
+    step_deg: float = 2.0,
+    gain: float = 0.5,
+    image_shape=(3, 8, 8),
+) -> Path:
+    """A stand-in for an exported ACT with the export's inputs, output and contract (built with
+    onnx.helper, no lerobot): action i of a chunk is ``gain`` x the state plus ``i * step_deg`` on
+    every entry (plus 0 x the front image's mean), so a chunk is a ramp and each new chunk starts
+    again from the state: a target that jumps back at every chunk boundary, and an arm that settles
+    where ``gain`` x state + the ramp holds it (LeRobot's units: degrees, gripper percent)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from sim2real.deploy.spec.foreign import lerobot as lr
+
+    offsets = (np.arange(chunk_size, dtype=np.float32)[:, None] * step_deg) * np.ones(
+        (1, 6), np.float32
+    )
+    nodes = [
+        helper.make_node("Mul", ["observation.state", "gain"], ["sg"]),
+        helper.make_node("Unsqueeze", ["sg", "axis1"], ["s1"]),
+        helper.make_node("Add", ["s1", "offsets"], ["ramp"]),
+        helper.make_node("ReduceMean", ["observation.images.front"], ["m"], keepdims=0),
+        helper.make_node("Mul", ["m", "zero"], ["m0"]),
+        helper.make_node("Add", ["ramp", "m0"], ["action_chunk"]),
+    ]
+    inits = [
+        helper.make_tensor("axis1", TensorProto.INT64, [1], [1]),
+        helper.make_tensor(
+            "offsets", TensorProto.FLOAT, [1, chunk_size, 6], offsets.reshape(-1).tolist()
+        ),
+        helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
+        helper.make_tensor("gain", TensorProto.FLOAT, [], [gain]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "chunk_ramp",
+        [
+            helper.make_tensor_value_info("observation.state", TensorProto.FLOAT, [1, 6]),
+            helper.make_tensor_value_info(
+                "observation.images.front", TensorProto.FLOAT, [1, *image_shape]
+            ),
+        ],
+        [helper.make_tensor_value_info("action_chunk", TensorProto.FLOAT, [1, chunk_size, 6])],
+        inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    identity = lr.Normalization("IDENTITY")
+    contract = lr.LeRobotContract(
+        policy_type="act",
+        state_dim=6,
+        env_state_dim=0,
+        cameras=(("observation.images.front", tuple(image_shape)),),
+        action_dim=6,
+        normalization={
+            "observation.state": identity,
+            "observation.images.front": identity,
+            "action": identity,
+        },
+        n_obs_steps=1,
+        chunk_size=chunk_size,
+        n_action_steps=n_action_steps,
+        temporal_ensemble_coeff=coeff,
+        fps=fps,
+    )
+    prop = model.metadata_props.add()
+    prop.key, prop.value = lr.METADATA_KEY, contract.to_json()
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path

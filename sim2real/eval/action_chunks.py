@@ -1,0 +1,189 @@
+"""Action chunks on the MuJoCo plant (:func:`run_chunks`): a LeRobot export
+(:class:`~sim2real.deploy.policy.lerobot_policy.LeRobotChunkPolicy`) at its own rate beside the
+robot's servo loop, each servo tick's held target through the joint estimator, the safety guard
+and (or not) the Ruckig smoother with the guard's motion check, as ``Runtime.tick`` runs them; and
+the joint jerk at chunk boundaries against the jerk inside chunks (:func:`boundary_jerk`).
+
+Not the whole runtime: no state machine (ramp-in, safe stops), no supervision; the cameras are
+stand-ins (``frames``: by default a new uniform-noise image per camera every policy tick) until
+the plant renders RGB.
+
+``python -m sim2real.eval.action_chunks POLICY.onnx [--seconds S] [--seed N]`` prints the figures
+with and without the smoother.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim2real.deploy.backends.sim.plant import SimBackend
+from sim2real.deploy.core.state import Kinematics, RobotState
+from sim2real.deploy.estimation.joints import JointStateEstimator
+from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
+from sim2real.deploy.safety.guard import SafetyGuard
+from sim2real.deploy.smoothing import CommandSmoother
+from sim2real.robots import load_robot
+
+
+@dataclass
+class ChunkRun:
+    """One run's record.
+
+    Attributes:
+        dt: s, the servo period. position: (ticks, n) rad, the plant's true joint positions.
+        command: (ticks, n) rad, the command written. boundary_ticks: servo ticks at which a new
+        chunk was taken. policy_ticks, calls: the policy's ticks and network calls.
+        guard_clamps: servo ticks whose target the guard changed.
+    """
+
+    dt: float
+    position: np.ndarray
+    command: np.ndarray
+    boundary_ticks: np.ndarray
+    policy_ticks: int
+    calls: int
+    guard_clamps: int
+
+
+def noise_frames(policy: LeRobotChunkPolicy, seed: int) -> Callable[[float], dict]:
+    """Per camera a uniform-noise float32 image in [0, 1], a new one every policy tick."""
+    rng = np.random.default_rng(seed)
+    cache: dict = {}
+
+    def frames(t: float) -> dict:
+        k = int(np.floor(t / policy.period + 1e-9))
+        if cache.get("k") != k:
+            cache["k"] = k
+            cache["f"] = {
+                key: rng.uniform(0, 1, shape).astype(np.float32)
+                for key, shape in policy.contract.cameras
+            }
+        return cache["f"]
+
+    return frames
+
+
+def run_chunks(
+    onnx_path,
+    robot_name: str = "so101",
+    seconds: float = 10.0,
+    smoothing: bool = True,
+    seed: int = 0,
+    frames: Callable[[float], dict] | None = None,
+) -> ChunkRun:
+    """Run the export on the plant for ``seconds`` s (module docstring).
+
+    Without ``smoothing`` the guard's target is written to the position servos as it is (the
+    LeRobot loop's way: ``robot.send_action`` every policy tick); with it, Ruckig's step and the
+    guard's motion check, as the runtime does.
+    """
+    robot = load_robot(robot_name)
+    policy = LeRobotChunkPolicy(onnx_path, robot)
+    frames = frames or noise_frames(policy, seed)
+    plant = SimBackend(robot, "position", envs=1, seed=seed)
+    plant.open()
+    n, dt = robot.n_joints, robot.control_period
+    est, kin = JointStateEstimator(robot, 1), Kinematics(robot)
+    state = RobotState.zeros(1, n)
+    guard, smoother = SafetyGuard(robot, 1, "position"), CommandSmoother(robot, 1, "position")
+    frame = plant.read()
+    q0 = frame.position.copy()
+    est.reset(q0, frame.position_stamp)
+    state.q[:] = q0
+    guard.reset(q0)
+    smoother.reset(q0, np.zeros_like(q0))
+    acc = guard.estimator_input(smoother)
+    ticks = int(round(seconds / dt))
+    pos, cmds, boundary, clamps = np.zeros((ticks, n)), np.zeros((ticks, n)), [], 0
+    for k in range(ticks):
+        t = k * dt
+        frame = plant.read()
+        state = est.update(frame, state, acc if smoothing else None)
+        kin.update(state)
+        calls = policy.chunks.calls
+        target = policy.step(t, state.q[0].copy(), frames(t))[None].copy()
+        if policy.chunks.calls != calls:
+            boundary.append(k)
+        wanted = target.copy()
+        target = guard.filter(target, state)
+        clamps += int(not np.allclose(target, wanted))
+        if smoothing:
+            cmd = smoother.step(target)
+            cmd = guard.check_motion(smoother, state, cmd)
+        else:
+            cmd = target
+        plant.write(cmd)
+        plant.advance()
+        pos[k] = plant.true_position()[0]
+        cmds[k] = cmd[0]
+    return ChunkRun(
+        dt, pos, cmds, np.array(boundary), policy.policy_ticks, policy.chunks.calls, clamps
+    )
+
+
+def jerk(x: np.ndarray, dt: float) -> np.ndarray:
+    """(ticks - 3, n) rad/s^3, the third finite difference of ``x`` over ``dt``."""
+    return np.diff(x, n=3, axis=0) / dt**3
+
+
+def boundary_jerk(run: ChunkRun, what: str = "position", skip_first: int = 1) -> dict:
+    """Peak |jerk| (rad/s^3, over joints) within one policy period after each chunk boundary,
+    against the same after each policy tick inside a chunk.
+
+    Returns ``{"boundary_median", "boundary_max", "inside_median", "inside_max", "boundaries"}``:
+    medians and maxima over the windows; the first ``skip_first`` boundaries (the start from
+    rest) left out.
+    """
+    j = np.abs(jerk(getattr(run, what), run.dt)).max(axis=1)
+    period_ticks = max(1, int(round(len(run.position) / max(run.policy_ticks, 1))))
+    starts = set(run.boundary_ticks.tolist()[skip_first:])
+    policy_starts = np.unique(np.round(np.arange(0, len(j), period_ticks)).astype(int))
+
+    def peaks(ticks) -> np.ndarray:
+        out = [
+            j[max(0, s - 2) : s + period_ticks].max() for s in ticks if s + period_ticks <= len(j)
+        ]
+        return np.asarray(out) if out else np.zeros(1)
+
+    b = peaks(sorted(starts))
+    inside = peaks([s for s in policy_starts if s not in starts and s > period_ticks])
+    return {
+        "boundary_median": float(np.median(b)),
+        "boundary_max": float(b.max()),
+        "inside_median": float(np.median(inside)),
+        "inside_max": float(inside.max()),
+        "boundaries": len(b),
+    }
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m sim2real.eval.action_chunks", description=__doc__)
+    p.add_argument("policy", help="the ONNX file policy-export wrote from a LeRobot folder")
+    p.add_argument("--robot", default="so101")
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    for smoothing in (False, True):
+        run = run_chunks(args.policy, args.robot, args.seconds, smoothing, args.seed)
+        for what in ("position", "command"):
+            f = boundary_jerk(run, what)
+            print(
+                f"smoother {'on ' if smoothing else 'off'} {what:8s}: peak |jerk| after a chunk "
+                f"boundary median {f['boundary_median']:.3g} max {f['boundary_max']:.3g} rad/s^3 "
+                f"({f['boundaries']} boundaries); after a policy tick inside a chunk median "
+                f"{f['inside_median']:.3g} max {f['inside_max']:.3g}"
+            )
+        print(
+            f"  {run.policy_ticks} policy ticks, {run.calls} network calls, "
+            f"{len(run.position)} servo ticks at {1 / run.dt:g} Hz, guard changed "
+            f"{run.guard_clamps} targets"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

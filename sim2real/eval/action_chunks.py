@@ -74,6 +74,7 @@ def run_chunks(
     smoothing: bool = True,
     seed: int = 0,
     frames: Callable[[float], dict] | None = None,
+    env_state: Callable[[float], np.ndarray] | None = None,
 ) -> ChunkRun:
     """Run the export on the plant for ``seconds`` s (module docstring).
 
@@ -90,6 +91,7 @@ def run_chunks(
     est, kin = JointStateEstimator(robot, 1), Kinematics(robot)
     state = RobotState.zeros(1, n)
     guard, smoother = SafetyGuard(robot, 1, "position"), CommandSmoother(robot, 1, "position")
+    episode = None
     frame = plant.read()
     q0 = frame.position.copy()
     est.reset(q0, frame.position_stamp)
@@ -104,8 +106,12 @@ def run_chunks(
         frame = plant.read()
         state = est.update(frame, state, acc if smoothing else None)
         kin.update(state)
+        es = env_state(t) if env_state is not None else None
+        if es is not None and (episode is None or not np.array_equal(es, episode)):
+            episode = np.array(es)
+            policy.reset()  # a new episode (a new goal): a fresh chunk from this tick
         calls = policy.chunks.calls
-        target = policy.step(t, state.q[0].copy(), frames(t))[None].copy()
+        target = policy.step(t, state.q[0].copy(), frames(t), es)[None].copy()
         if policy.chunks.calls != calls:
             boundary.append(k)
         wanted = target.copy()
@@ -123,6 +129,47 @@ def run_chunks(
     return ChunkRun(
         dt, pos, cmds, np.array(boundary), policy.policy_ticks, policy.chunks.calls, clamps
     )
+
+
+def reach_success(
+    onnx_path,
+    robot_name: str = "so101",
+    goals: int = 20,
+    period: float = 4.0,
+    success_time: float = 3.0,
+    seed: int = 0,
+) -> dict:
+    """A goal-conditioned export (``observation.environment_state`` = the goal, m, base frame) on
+    the plant: ``goals`` goals from the robot's task region (``sample_goal``, the task's own
+    draw), a new one every ``period`` s; a goal is reached when the true end effector comes
+    within the task's ``success_radius`` of it at most ``success_time`` s after it was issued
+    (``deploy-run``'s rule and defaults). Returns ``{"goals", "reached", "rate"}`` and the
+    median closest distance (m)."""
+    from sim2real.deploy.tasks.goals import sample_goal
+
+    robot = load_robot(robot_name)
+    rng = np.random.default_rng(seed + 1)
+    targets = [sample_goal(robot, rng) for _ in range(goals)]
+
+    def env_state(t: float) -> np.ndarray:
+        return targets[min(int(t // period), goals - 1)]
+
+    run = run_chunks(onnx_path, robot_name, goals * period, True, seed, env_state=env_state)
+    radius = robot.config.task.success_radius
+    per_goal = int(round(period / run.dt))
+    window = int(round(success_time / run.dt))
+    closest = []
+    for g in range(goals):
+        qs = run.position[g * per_goal : g * per_goal + window]
+        d = [np.linalg.norm(robot.forward_kinematics(q) - targets[g]) for q in qs]
+        closest.append(min(d))
+    reached = int(np.sum(np.asarray(closest) <= radius))
+    return {
+        "goals": goals,
+        "reached": reached,
+        "rate": reached / goals,
+        "median_closest": float(np.median(closest)),
+    }
 
 
 def jerk(x: np.ndarray, dt: float) -> np.ndarray:

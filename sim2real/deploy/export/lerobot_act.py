@@ -6,7 +6,8 @@ The graph is the whole of lerobot's inference path for one call of the network: 
 preprocessor's normalisation of the state and of every camera image, ``ACT.forward`` (the VAE
 encoder off: a zero latent, as ``ACTPolicy.predict_action_chunk`` runs it in eval mode) and the
 postprocessor's unnormalisation of the actions. Its inputs are ``observation.state``
-``[1, state_dim]`` (the robot's units, as recorded) and one ``observation.images.<camera>``
+``[1, state_dim]`` (the robot's units, as recorded), ``observation.environment_state``
+``[1, env_state_dim]`` when the policy has one, and one ``observation.images.<camera>``
 ``[1, 3, H, W]`` float32 in ``[0, 1]`` RGB per camera; its output ``action_chunk``
 ``[1, chunk_size, action_dim]``. What the runtime does with the chunk (the action queue or
 temporal ensembling) is :class:`~sim2real.deploy.policy.action_chunks.ActionChunks`; the contract
@@ -111,6 +112,8 @@ def graph_module(policy, contract: lr.LeRobotContract):
             super().__init__()
             self.model = policy.model
             self.keys = [lr.STATE_KEY, *contract.camera_keys, lr.ACTION_KEY]
+            if contract.env_state_dim:
+                self.keys.append(lr.ENV_STATE_KEY)
             self.modes = {}
             self.eps = {}
             for i, key in enumerate(self.keys):
@@ -149,10 +152,14 @@ def graph_module(policy, contract: lr.LeRobotContract):
                 return (y + 1) / 2 * d + lo
             return y
 
-        def forward(self, state, *images):
-            from lerobot.utils.constants import OBS_IMAGES, OBS_STATE
+        def forward(self, state, *rest):
+            from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
             batch = {OBS_STATE: self.norm(lr.STATE_KEY, state)}
+            images = rest
+            if contract.env_state_dim:
+                batch[OBS_ENV_STATE] = self.norm(lr.ENV_STATE_KEY, rest[0])
+                images = rest[1:]
             if images:
                 batch[OBS_IMAGES] = [
                     self.norm(k, img) for k, img in zip(contract.camera_keys, images, strict=True)
@@ -167,15 +174,19 @@ def _to_onnx(module, contract: lr.LeRobotContract):
     import onnx
     import torch
 
-    state = torch.zeros(1, contract.state_dim)
+    state = [torch.zeros(1, contract.state_dim)]
+    names = [lr.STATE_KEY]
+    if contract.env_state_dim:
+        state.append(torch.zeros(1, contract.env_state_dim))
+        names.append(lr.ENV_STATE_KEY)
     images = [torch.full((1, *shape), 0.5) for _, shape in contract.cameras]
-    names = [lr.STATE_KEY, *contract.camera_keys]
+    names += list(contract.camera_keys)
     buf = io.BytesIO()
     try:
         with torch.no_grad():
             torch.onnx.export(
                 module,
-                (state, *images),
+                (*state, *images),
                 buf,
                 input_names=names,
                 output_names=[OUTPUT],
@@ -194,6 +205,8 @@ def random_observation(contract: lr.LeRobotContract, rng: np.random.Generator) -
     """One observation as lerobot's policies take it (no batch axis): the state around its
     statistics, every image uniform in ``[0, 1]``."""
     obs = {lr.STATE_KEY: _around(contract, lr.STATE_KEY, (contract.state_dim,), rng)}
+    if contract.env_state_dim:
+        obs[lr.ENV_STATE_KEY] = _around(contract, lr.ENV_STATE_KEY, (contract.env_state_dim,), rng)
     for key, shape in contract.cameras:
         obs[key] = rng.uniform(0.0, 1.0, size=shape).astype(np.float32)
     return obs
@@ -290,10 +303,10 @@ def export_lerobot_act(
             f"{folder}: the policy's rate is unknown (train_config.json has no env.fps); give "
             "--fps, the dataset's meta/info.json fps"
         )
-    if contract.state_dim == 0 or contract.env_state_dim:
+    if contract.state_dim == 0:
         raise ExportError(
-            f"{folder / 'config.json'}: input_features must hold observation.state and no "
-            "observation.environment_state (a robot's policy)"
+            f"{folder / 'config.json'}: input_features must hold observation.state (a robot's "
+            "policy)"
         )
     policy, pre, post = load_policy(folder)
     model = _to_onnx(graph_module(policy, contract), contract)

@@ -93,11 +93,18 @@ class LeRobotChunkPolicy:
         rad = self.lower + a / 100.0 * (self.upper - self.lower)
         return np.where(self.units, np.deg2rad(a), rad)
 
-    def step(self, t: float, q: np.ndarray, frames: Mapping[str, np.ndarray]) -> np.ndarray:
+    def step(
+        self,
+        t: float,
+        q: np.ndarray,
+        frames: Mapping[str, np.ndarray],
+        env_state: np.ndarray | None = None,
+    ) -> np.ndarray:
         """The joint target (n,) rad at time ``t`` s of the servo loop: a new action when a policy
         period has passed since the last (the graph called when a chunk is needed, with the
-        state ``q`` rad and ``frames``: per camera key a float32 ``(3, H, W)`` image in
-        ``[0, 1]``, RGB), else the last one held."""
+        state ``q`` rad, ``frames``: per camera key a float32 ``(3, H, W)`` image in ``[0, 1]``,
+        RGB, and ``env_state``, the policy's ``observation.environment_state`` if it has one),
+        else the last one held."""
         if self._next is not None and t < self._next - 1e-9:
             return self.target
         self._next = t + self.period if self._next is None else self._next + self.period
@@ -105,6 +112,14 @@ class LeRobotChunkPolicy:
 
         def predict():
             feed = {lr.STATE_KEY: self.to_lerobot(q)[None]}
+            if self.contract.env_state_dim:
+                es = np.asarray(env_state, dtype=np.float32).reshape(1, -1)
+                if es.shape[1] != self.contract.env_state_dim:
+                    raise ValueError(
+                        f"{lr.ENV_STATE_KEY}: {es.shape[1]} entries, expected "
+                        f"{self.contract.env_state_dim}"
+                    )
+                feed[lr.ENV_STATE_KEY] = es
             for key, shape in self.contract.cameras:
                 img = np.asarray(frames[key], dtype=np.float32)
                 if img.shape != shape:

@@ -37,7 +37,7 @@ class ChunkRun:
         dt: s, the servo period. position: (ticks, n) rad, the plant's true joint positions.
         command: (ticks, n) rad, the command written. boundary_ticks: servo ticks at which a new
         chunk was taken. policy_ticks, calls: the policy's ticks and network calls.
-        guard_clamps: servo ticks whose target the guard changed.
+        guard_clamps: servo ticks whose target the guard changed. policy_period: s.
     """
 
     dt: float
@@ -47,6 +47,7 @@ class ChunkRun:
     policy_ticks: int
     calls: int
     guard_clamps: int
+    policy_period: float = 0.0
 
 
 def noise_frames(policy: LeRobotChunkPolicy, seed: int) -> Callable[[float], dict]:
@@ -127,8 +128,30 @@ def run_chunks(
         pos[k] = plant.true_position()[0]
         cmds[k] = cmd[0]
     return ChunkRun(
-        dt, pos, cmds, np.array(boundary), policy.policy_ticks, policy.chunks.calls, clamps
+        dt,
+        pos,
+        cmds,
+        np.array(boundary),
+        policy.policy_ticks,
+        policy.chunks.calls,
+        clamps,
+        policy.period,
     )
+
+
+def goal_schedule(robot, goals: int, period: float, seed: int):
+    """``goals`` goals from the robot's task region (``sample_goal``, the goal task's own draw,
+    from ``default_rng(seed + 1)`` as deploy-run seeds its task), a new one every ``period`` s:
+    the goals and ``env_state(t)``, the goal (m, base frame) at time ``t`` s."""
+    from sim2real.deploy.tasks.goals import sample_goal
+
+    rng = np.random.default_rng(seed + 1)
+    targets = [sample_goal(robot, rng) for _ in range(goals)]
+
+    def env_state(t: float) -> np.ndarray:
+        return targets[min(int(t // period), goals - 1)]
+
+    return targets, env_state
 
 
 def reach_success(
@@ -138,38 +161,31 @@ def reach_success(
     period: float = 4.0,
     success_time: float = 3.0,
     seed: int = 0,
-) -> dict:
+    smoothing: bool = True,
+) -> tuple[dict, ChunkRun]:
     """A goal-conditioned export (``observation.environment_state`` = the goal, m, base frame) on
-    the plant: ``goals`` goals from the robot's task region (``sample_goal``, the task's own
-    draw), a new one every ``period`` s; a goal is reached when the true end effector comes
+    the plant, :func:`goal_schedule`'s goals; a goal is reached when the true end effector comes
     within the task's ``success_radius`` of it at most ``success_time`` s after it was issued
-    (``deploy-run``'s rule and defaults). Returns ``{"goals", "reached", "rate"}`` and the
-    median closest distance (m)."""
-    from sim2real.deploy.tasks.goals import sample_goal
-
+    (``deploy-run``'s rule and defaults). Returns ``{"goals", "reached", "rate",
+    "median_closest"}`` (m) and the run."""
     robot = load_robot(robot_name)
-    rng = np.random.default_rng(seed + 1)
-    targets = [sample_goal(robot, rng) for _ in range(goals)]
-
-    def env_state(t: float) -> np.ndarray:
-        return targets[min(int(t // period), goals - 1)]
-
-    run = run_chunks(onnx_path, robot_name, goals * period, True, seed, env_state=env_state)
+    targets, env_state = goal_schedule(robot, goals, period, seed)
+    run = run_chunks(onnx_path, robot_name, goals * period, smoothing, seed, env_state=env_state)
     radius = robot.config.task.success_radius
     per_goal = int(round(period / run.dt))
     window = int(round(success_time / run.dt))
     closest = []
     for g in range(goals):
         qs = run.position[g * per_goal : g * per_goal + window]
-        d = [np.linalg.norm(robot.forward_kinematics(q) - targets[g]) for q in qs]
-        closest.append(min(d))
+        closest.append(min(np.linalg.norm(robot.forward_kinematics(q) - targets[g]) for q in qs))
     reached = int(np.sum(np.asarray(closest) <= radius))
-    return {
+    figures = {
         "goals": goals,
         "reached": reached,
         "rate": reached / goals,
         "median_closest": float(np.median(closest)),
     }
+    return figures, run
 
 
 def jerk(x: np.ndarray, dt: float) -> np.ndarray:
@@ -186,9 +202,10 @@ def boundary_jerk(run: ChunkRun, what: str = "position", skip_first: int = 1) ->
     rest) left out.
     """
     j = np.abs(jerk(getattr(run, what), run.dt)).max(axis=1)
-    period_ticks = max(1, int(round(len(run.position) / max(run.policy_ticks, 1))))
+    period_ticks = max(1, int(round(run.policy_period / run.dt)))
     starts = set(run.boundary_ticks.tolist()[skip_first:])
-    policy_starts = np.unique(np.round(np.arange(0, len(j), period_ticks)).astype(int))
+    step = run.policy_period / run.dt
+    policy_starts = np.unique(np.ceil(np.arange(0, len(j), step) - 1e-9).astype(int))
 
     def peaks(ticks) -> np.ndarray:
         out = [
@@ -213,9 +230,26 @@ def main(argv=None) -> int:
     p.add_argument("--robot", default="so101")
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--goals",
+        type=int,
+        default=0,
+        help="a goal-conditioned policy (observation.environment_state): this many goals, 4 s "
+        "each, and the goals it reaches (instead of --seconds)",
+    )
     args = p.parse_args(argv)
     for smoothing in (False, True):
-        run = run_chunks(args.policy, args.robot, args.seconds, smoothing, args.seed)
+        if args.goals:
+            figures, run = reach_success(
+                args.policy, args.robot, args.goals, seed=args.seed, smoothing=smoothing
+            )
+            print(
+                f"smoother {'on ' if smoothing else 'off'}: reached {figures['reached']} of "
+                f"{figures['goals']} goals ({figures['rate']:.0%}); median closest approach "
+                f"{figures['median_closest'] * 1000:.1f} mm"
+            )
+        else:
+            run = run_chunks(args.policy, args.robot, args.seconds, smoothing, args.seed)
         for what in ("position", "command"):
             f = boundary_jerk(run, what)
             print(

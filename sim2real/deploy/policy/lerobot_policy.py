@@ -72,14 +72,15 @@ class LeRobotChunkPolicy:
         self.session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
         self.chunks = ActionChunks(c.chunk_size, c.n_action_steps, c.temporal_ensemble_coeff)
         self.period = 1.0 / c.fps
+        self.policy_ticks = 0
+        self.boundaries: list[int] = []
         self.reset()
 
     def reset(self) -> None:
-        """An episode's start: no queued action, the next :meth:`step` is a policy tick."""
+        """An episode's start: no queued action, the next :meth:`step` is a policy tick (and a
+        network call). The counters (``policy_ticks``, ``boundaries``) run on."""
         self.chunks.reset()
         self.target: np.ndarray | None = None
-        self.policy_ticks = 0
-        self.boundaries: list[int] = []
         self._next = None
 
     def to_lerobot(self, q: np.ndarray) -> np.ndarray:

@@ -16,7 +16,9 @@ from tests.lerobot_folder import write_act_folder
 HAS_LEROBOT = importlib.util.find_spec("lerobot") is not None
 
 
-def lerobot_act_folder(folder, *, chunk_size=8, n_action_steps=3, coeff=None, seed=0):
+def lerobot_act_folder(
+    folder, *, chunk_size=8, n_action_steps=3, coeff=None, seed=0, cameras=True, env_state=False
+):
     """A small ACT policy saved by lerobot's ACTPolicy and processors (random weights; a
     ResNet-18 backbone without pretrained weights, as ACTConfig requires a ResNet)."""
     pytest.importorskip(
@@ -32,8 +34,10 @@ def lerobot_act_folder(folder, *, chunk_size=8, n_action_steps=3, coeff=None, se
 
     torch.manual_seed(seed)
     shape = (3, 32, 40)
-    cams = {"observation.images.front": shape, "observation.images.wrist": shape}
+    cams = {"observation.images.front": shape, "observation.images.wrist": shape} if cameras else {}
     inputs = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,))}
+    if env_state:
+        inputs["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(3,))
     inputs.update({k: PolicyFeature(type=FeatureType.VISUAL, shape=s) for k, s in cams.items()})
     cfg = ACTConfig(
         input_features=inputs,
@@ -94,6 +98,18 @@ def test_act_folder_exports_with_parity_against_select_action(
     sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     assert [i.name for i in sess.get_inputs()] == ["observation.state", *c.camera_keys]
     assert sess.get_outputs()[0].shape == [1, 8, 6]
+
+
+def test_goal_conditioned_act_without_cameras(tmp_path):
+    """observation.environment_state (a goal) instead of cameras: ACT's other input."""
+    from sim2real.deploy.export.lerobot_act import PARITY_RTOL, export_lerobot_act
+
+    folder = lerobot_act_folder(tmp_path / "pm", cameras=False, env_state=True, n_action_steps=4)
+    result = export_lerobot_act(folder, tmp_path / "g.onnx", fps=25)
+    assert result.max_rel_error <= PARITY_RTOL and result.calls == 6
+    c = lr.read_onnx(result.path)
+    assert c.env_state_dim == 3 and c.cameras == ()
+    assert c.normalization["observation.environment_state"].mode == "IDENTITY"  # ENV: unmapped
 
 
 def test_folder_without_fps_is_refused_in_one_line(tmp_path, capsys):

@@ -69,3 +69,26 @@ def test_the_smoother_bounds_the_jerk_of_a_chunk_boundary(tmp_path, so101):
     assert np.abs(jerk(smooth.command, smooth.dt)).max() <= limit * 1.01
     f_raw, f_smooth = boundary_jerk(raw, "command"), boundary_jerk(smooth, "command")
     assert f_raw["boundary_median"] > 5 * f_smooth["boundary_median"]
+
+
+def test_deploy_run_refuses_a_lerobot_export_in_one_line(tmp_path, so101):
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.deploy.spec.onnx_checks import PolicyLoadError
+
+    path = write_chunk_onnx(tmp_path / "act.onnx")
+    with pytest.raises(
+        PolicyLoadError, match=r"a LeRobot export .* `python -m sim2real.eval.action_chunks "
+    ) as info:
+        OnnxPolicy(path, so101)
+    assert "\n" not in str(info.value)
+
+
+def test_inspect_shows_the_lerobot_contract(tmp_path, capsys):
+    from sim2real.deploy.cli.policy_export import EXIT_OK, main
+
+    path = write_chunk_onnx(tmp_path / "act.onnx", chunk_size=6, n_action_steps=4, fps=30.0)
+    assert main([str(path), "--inspect"]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "LeRobot ACT policy" in out
+    assert "action queue (4 of 6 actions per call)" in out and "rate: 30.0 Hz" in out
+    assert "camera observation.images.front: 3x8x8 float32 [0, 1] RGB CHW" in out

@@ -119,12 +119,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_BAD_INPUT
+    from sim2real.deploy.spec.foreign import lerobot
+
+    if args.inspect and lerobot.detect(source):
+        try:
+            contract = lerobot.read(source, fps=args.fps)
+        except ValueError as exc:
+            print(f"policy-export: error: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        print("\n".join(lerobot.describe(contract)))
+        return EXIT_OK
     if args.inspect:
         return _inspect(source, args)
     if source.suffix.lower() == ".onnx":
         return _export_onnx(source, args)
-    from sim2real.deploy.spec.foreign import lerobot
-
     if lerobot.detect(source):
         return _export_lerobot(source, args)
     if _folder_route(args):

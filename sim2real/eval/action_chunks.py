@@ -198,8 +198,9 @@ def boundary_jerk(run: ChunkRun, what: str = "position", skip_first: int = 1) ->
     against the same after each policy tick inside a chunk.
 
     Returns ``{"boundary_median", "boundary_max", "inside_median", "inside_max", "boundaries"}``:
-    medians and maxima over the windows; the first ``skip_first`` boundaries (the start from
-    rest) left out.
+    medians and maxima over the windows (NaN where there is none: with temporal ensembling every
+    policy tick takes a chunk); the first ``skip_first`` boundaries (the start from rest) left
+    out.
     """
     j = np.abs(jerk(getattr(run, what), run.dt)).max(axis=1)
     period_ticks = max(1, int(round(run.policy_period / run.dt)))
@@ -211,7 +212,7 @@ def boundary_jerk(run: ChunkRun, what: str = "position", skip_first: int = 1) ->
         out = [
             j[max(0, s - 2) : s + period_ticks].max() for s in ticks if s + period_ticks <= len(j)
         ]
-        return np.asarray(out) if out else np.zeros(1)
+        return np.asarray(out) if out else np.full(1, np.nan)
 
     b = peaks(sorted(starts))
     inside = peaks([s for s in policy_starts if s not in starts and s > period_ticks])
@@ -252,11 +253,16 @@ def main(argv=None) -> int:
             run = run_chunks(args.policy, args.robot, args.seconds, smoothing, args.seed)
         for what in ("position", "command"):
             f = boundary_jerk(run, what)
+            inside = (
+                "no policy tick inside a chunk (a call every tick)"
+                if np.isnan(f["inside_median"])
+                else f"after a policy tick inside a chunk median {f['inside_median']:.3g} max "
+                f"{f['inside_max']:.3g}"
+            )
             print(
                 f"smoother {'on ' if smoothing else 'off'} {what:8s}: peak |jerk| after a chunk "
                 f"boundary median {f['boundary_median']:.3g} max {f['boundary_max']:.3g} rad/s^3 "
-                f"({f['boundaries']} boundaries); after a policy tick inside a chunk median "
-                f"{f['inside_median']:.3g} max {f['inside_max']:.3g}"
+                f"({f['boundaries']} boundaries); {inside}"
             )
         print(
             f"  {run.policy_ticks} policy ticks, {run.calls} network calls, "

@@ -83,6 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
         "for soak-test to run: a legged_gym config (.py, its domain_rand and noise classes, read "
         "as text) or a ranges file (.toml)",
     )
+    p.add_argument(
+        "--fps",
+        type=float,
+        help="a LeRobot policy folder: the policy's rate in Hz when its train_config.json has no "
+        "env.fps (the dataset's meta/info.json fps)",
+    )
     p.add_argument("--exporter", choices=EXPORTERS, default="torchscript")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
@@ -113,10 +119,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_BAD_INPUT
+    from sim2real.deploy.spec.foreign import lerobot
+
+    if args.inspect and lerobot.detect(source):
+        try:
+            contract = lerobot.read(source, fps=args.fps)
+        except ValueError as exc:
+            print(f"policy-export: error: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        print("\n".join(lerobot.describe(contract)))
+        return EXIT_OK
     if args.inspect:
         return _inspect(source, args)
     if source.suffix.lower() == ".onnx":
         return _export_onnx(source, args)
+    if lerobot.detect(source):
+        return _export_lerobot(source, args)
     if _folder_route(args):
         return _export_folder(source, args)
     return _export_checkpoint(source, args)
@@ -182,6 +200,45 @@ def _export_folder(source: Path, args) -> int:
         )
     print(f"  export time {result.seconds:.2f} s; {result.exporter}")
     print(f"  run: deploy-run --robot {args.robot or 'ROBOT'} --policy {result.path}")
+    return EXIT_OK
+
+
+def _export_lerobot(source: Path, args) -> int:
+    """A LeRobot policy folder (``pretrained_model/``): its ACT graph with the contract, after
+    the parity check against lerobot's ``select_action``
+    (:mod:`sim2real.deploy.export.lerobot_act`)."""
+
+    def export():
+        from sim2real.deploy.export.lerobot_act import export_lerobot_act
+        from sim2real.deploy.spec.foreign.lerobot import read
+
+        if args.robot:
+            from sim2real.robots import load_robot
+
+            joints = load_robot(args.robot).joint_names
+            c = read(source, fps=args.fps)
+            if c.action_dim != len(joints) or c.state_dim != len(joints):
+                raise ExportError(
+                    f"{source / 'config.json'}: observation.state has {c.state_dim} and action "
+                    f"{c.action_dim} entries, robot {args.robot} has {len(joints)} joints"
+                )
+        return export_lerobot_act(source, args.out, fps=args.fps, robot=args.robot, seed=args.seed)
+
+    result = _exported(export)
+    if isinstance(result, int):
+        return result
+    from sim2real.deploy.spec.foreign.lerobot import describe
+
+    c = result.contract
+    print(f"exported {source} (lerobot {c.policy_type}) -> {result.path}")
+    for line in describe(c):
+        print(f"  {line}")
+    print(
+        f"  parity vs lerobot's select_action: max |onnx - lerobot| {result.max_abs_error:.2e} "
+        f"(action units), {result.max_rel_error:.2e} of the action's scale, over {result.ticks} "
+        f"ticks and {result.calls} network calls"
+    )
+    print(f"  export time {result.seconds:.2f} s")
     return EXIT_OK
 
 

@@ -150,8 +150,14 @@ def _inspect_onnx(path: Path, robot=None) -> dict[str, Any]:
             "initializers": len(graph.initializer),
         },
     }
+    from sim2real.deploy.spec.foreign import lerobot
+
     if "policy_spec" in metadata:
         result["spec"] = spec_summary(metadata["policy_spec"], f"{path}: metadata 'policy_spec'")
+    elif lerobot.detect_onnx(metadata):
+        contract = lerobot.LeRobotContract.from_json(metadata[lerobot.METADATA_KEY], str(path))
+        result["lerobot"] = lerobot.describe(contract)
+        metadata[lerobot.METADATA_KEY] = "(below)"
     else:
         result["foreign"] = _foreign(path, model, robot)
     if any(s["input"] == GODOT_STATE[0] for s in state):

@@ -89,6 +89,14 @@ def resolve_spec(
                 return foreign.to_spec(contract, robot), contract
         except SpecError as exc:
             raise PolicyLoadError(str(exc)) from None
+        from sim2real.deploy.spec.foreign import lerobot
+
+        if lerobot.detect_onnx({p.key: p.value for p in model.metadata_props}):
+            raise PolicyLoadError(
+                f"{path}: a LeRobot export (metadata '{lerobot.METADATA_KEY}'): the runtime does "
+                "not run action-chunk policies yet; run it on the plant with `python -m "
+                f"sim2real.eval.action_chunks {path}`"
+            )
         raise PolicyLoadError(
             f"{path}: no '{METADATA_SPEC}' metadata (not written by policy-export) and no "
             f"training stack's own contract ({foreign.known_formats()}); pass the "

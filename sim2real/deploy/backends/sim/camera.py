@@ -38,6 +38,7 @@ import mujoco
 import numpy as np
 
 from sim2real.deploy.backends.sim.depth_render import DepthRenderer
+from sim2real.deploy.backends.sim.task_scene import task_scene
 from sim2real.deploy.spec.camera import DepthImageBlock
 
 #: D435 depth RMS error bound, fraction of the distance, at ``D435_AT`` m (datasheet).
@@ -132,6 +133,9 @@ class PlantDepthCamera:
         noise: The sensor model (default the D435's; None for :class:`DepthNoise`).
         faults: The session's faults (default none). seed: Of the noise and fault draws.
         where: Named in a refusal (the robot's MJCF).
+        scene: The robot's task scene (:class:`~sim2real.deploy.backends.sim.task_scene.
+            TaskScene`: the robot's MJCF with a goal marker and the cameras watching the task),
+            rendered instead of the plant's models where given; None: the plant's models.
 
     Attributes:
         frames: (envs,) frames captured; delivered, dropped, spiked, frozen: counts (envs,).
@@ -150,8 +154,9 @@ class PlantDepthCamera:
         faults: CameraFaults | None = None,
         seed: int = 0,
         where: str = "MJCF",
+        scene=None,
     ):
-        self.plant, self.block = plant, block
+        self.plant, self.block, self.scene = plant, block, scene
         self.rate = float(block.rate if rate is None else rate)
         self.latency = float(block.latency if latency is None else latency)
         if not (self.rate > 0 and self.latency >= 0):
@@ -162,7 +167,8 @@ class PlantDepthCamera:
         self.faults = faults or CameraFaults()
         self.rng = np.random.default_rng(seed)
         envs = plant.envs
-        self.renderers = [DepthRenderer(m, block.camera, block.shape, where) for m in plant.models]
+        models = plant.models if scene is None else scene.models
+        self.renderers = [DepthRenderer(m, block.camera, block.shape, where) for m in models]
         if any(self.faults.extrinsic):  # the camera knocked on its mount
             turn = np.zeros(4)
             mujoco.mju_euler2Quat(turn, np.asarray(self.faults.extrinsic, float), "XYZ")
@@ -185,7 +191,10 @@ class PlantDepthCamera:
 
     def true_depth(self, env: int = 0) -> np.ndarray:
         """(rows, columns) float32 m, the camera's true z-depth of env ``env`` now."""
-        return self.renderers[env].render(self.plant.datas[env], self._truth)
+        data = self.plant.datas[env]
+        if self.scene is not None:  # the plant's pose, geometry and the goal, in the scene
+            data = self.scene.sync(env, data, self.renderers[env].model)
+        return self.renderers[env].render(data, self._truth)
 
     def _capture(self, e: int, stamp: float) -> None:
         f, rng = self.faults, self.rng
@@ -315,19 +324,26 @@ def attach_depth_camera(
     seed: int = 0,
 ) -> PlantDepthCamera | None:
     """For a simulated plant (its ``models``, ``datas``) and a spec with an image block: the
-    plant's camera made the runtime's frame source (``backend.camera_source``,
+    plant's camera (rendering the robot's task scene where robot.toml names one,
+    :func:`~sim2real.deploy.backends.sim.task_scene.task_scene`; its goal marker then shows
+    ``camera.scene.goal``, which the run sets) made the runtime's frame source (``backend.camera_source``,
     :func:`sim2real.deploy.runtime.camera.camera_stage`) and returned; else None (a backend that
     is no plant: its own driver writes the frames).
 
     Raises:
-        CameraError: the robot's MJCF has no camera of the block's name (one line naming the
-            MJCF file and ``images[0].camera``).
+        CameraError: the robot's MJCF (or task scene) has no camera of the block's name (one
+            line naming the file and ``images[0].camera``). ValueError: a task scene that does
+            not fit the robot.
     """
     images = getattr(spec, "images", ())
     if not images or not all(hasattr(backend, a) for a in ("models", "datas")):
         return None
     robot = getattr(backend, "robot", None)
-    where = f"{getattr(robot, 'mjcf_path', 'MJCF')}: images[0].camera"
-    camera = PlantDepthCamera(backend, images[0], rate, latency, noise, faults, seed, where)
+    scene = None if robot is None else task_scene(robot, backend)
+    mjcf = getattr(robot, "mjcf_path", "MJCF") if scene is None else scene.path
+    where = f"{mjcf}: images[0].camera"
+    camera = PlantDepthCamera(
+        backend, images[0], rate, latency, noise, faults, seed, where, scene=scene
+    )
     backend.camera_source = camera
     return camera

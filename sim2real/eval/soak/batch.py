@@ -44,6 +44,7 @@ from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.batch_stats import BatchStats
 from sim2real.eval.soak.batch_tick import BatchTick
+from sim2real.eval.soak.camera import show_goals, soak_camera
 from sim2real.eval.soak.curriculum_walk import CurriculumWalk
 from sim2real.eval.soak.exhibition import exhibition_task
 from sim2real.eval.soak.faults import SessionFaults
@@ -148,6 +149,8 @@ class SessionBatch:
         self.kind = robot_kind(robot)
         backend, models = build_plant(robot, mode, configs, draws)
         self.backend = backend
+        #: a camera policy's plant camera, its faults drawn per session (None: no image input)
+        self.camera = soak_camera(backend, self.policy.spec, configs)
         dofs = joint_dofs(models[0], robot)
         self.initial_friction = np.stack([m.dof_frictionloss[dofs].copy() for m in models])
         #: the pushes of the policy's training domain (legged_gym's push_robots), or None
@@ -174,6 +177,7 @@ class SessionBatch:
         )  # fmt: skip
         self.rig.add(BatchTick(self))  # the batch's bookkeeping, after the monitors and task
         self.rt, self.task = self.rig.runtime, self.rig.task
+        show_goals(self.camera, self.rt.goal)  # a task scene's marker at the sessions' goals
         self.violations, self.interventions = self.rig.violations, self.rig.interventions
         #: a legged robot's base estimate against the plant's truth (None for an arm)
         self.estimation = self.rig.estimation

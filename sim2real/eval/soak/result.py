@@ -24,6 +24,7 @@ from sim2real.deploy.monitors.interventions import INTERVENTION_CHECKS
 from sim2real.deploy.monitors.violations import VIOLATION_TYPES
 from sim2real.deploy.runtime import FAULT_CAUSES, STAGES, Mode
 from sim2real.eval.soak import checkpoint as ckpt
+from sim2real.eval.soak.camera import camera_result
 from sim2real.eval.soak.falls import (
     attribute_falls,
     fall_replays,
@@ -259,6 +260,7 @@ def session_result(session: Session) -> dict:
             "reinitializations": int(est.reinitializations_per_joint[e].sum()),
         },
         "wheels": wheel_speeds(b, e),
+        "camera": camera_result(b, e),
         "thermal": _thermal(session),
         "curves": _curves(session, legged=name in ("locomotion", "tracking")),
         "drift": {

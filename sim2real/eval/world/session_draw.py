@@ -52,6 +52,7 @@ STREAMS = {
     "terrain": 11,  # floating-base robots: the ground's tile kind and level (TerrainRanges)
     "terrain_tiles": 12,  # the random parts of its tiles (roughness, obstacles)
     "curriculum_walk": 13,  # a curriculum walk's respawns (sim2real.eval.soak.curriculum_walk)
+    "camera": 14,  # a camera policy's faults and depth noise (sim2real.eval.soak.camera)
 }
 
 

@@ -131,7 +131,8 @@ class PlantDepthCamera:
         rate: Frames per second (default the block's). latency: s from capture to delivery
             (default the block's).
         noise: The sensor model (default the D435's; None for :class:`DepthNoise`).
-        faults: The session's faults (default none). seed: Of the noise and fault draws.
+        faults: The session's faults (default none), or one per env (a soak's sessions).
+            seed: Of the noise and fault draws.
         where: Named in a refusal (the robot's MJCF).
         scene: The robot's task scene (:class:`~sim2real.deploy.backends.sim.task_scene.
             TaskScene`: the robot's MJCF with a goal marker and the cameras watching the task),
@@ -164,20 +165,25 @@ class PlantDepthCamera:
                 f"PlantDepthCamera: rate > 0 Hz, latency >= 0 s; got {self.rate}, {self.latency}"
             )
         self.noise = DepthNoise() if noise is None else noise
-        self.faults = faults or CameraFaults()
-        self.rng = np.random.default_rng(seed)
+        per_env = isinstance(faults, list | tuple) and not isinstance(faults, CameraFaults)
         envs = plant.envs
+        #: each env's faults; ``faults`` is the first env's (one for all, as deploy-run's)
+        self.env_faults = tuple(faults) if per_env else (faults or CameraFaults(),) * envs
+        if len(self.env_faults) != envs:
+            raise ValueError(f"faults: expected one per env ({envs}), got {len(self.env_faults)}")
+        self.faults = self.env_faults[0]
+        self.rng = np.random.default_rng(seed)
         models = plant.models if scene is None else scene.models
         self.renderers = [DepthRenderer(m, block.camera, block.shape, where) for m in models]
-        if any(self.faults.extrinsic):  # the camera knocked on its mount
-            turn = np.zeros(4)
-            mujoco.mju_euler2Quat(turn, np.asarray(self.faults.extrinsic, float), "XYZ")
-            for r in self.renderers:
+        for r, f in zip(self.renderers, self.env_faults, strict=True):
+            if any(f.extrinsic):  # the camera knocked on its mount
+                turn = np.zeros(4)
+                mujoco.mju_euler2Quat(turn, np.asarray(f.extrinsic, float), "XYZ")
                 cid, quat = r.cam.fixedcamid, np.zeros(4)
                 mujoco.mju_mulQuat(quat, r.model.cam_quat[cid].copy(), turn)
                 r.model.cam_quat[cid] = quat
         #: the columns a covered lens blinds
-        self._blind = int(round(self.faults.occlusion * block.shape[1]))
+        self._blind = [int(round(f.occlusion * block.shape[1])) for f in self.env_faults]
         self.frames = np.zeros(envs, dtype=np.int64)
         self.delivered = np.zeros(envs, dtype=np.int64)
         self.dropped = np.zeros(envs, dtype=np.int64)
@@ -197,7 +203,7 @@ class PlantDepthCamera:
         return self.renderers[env].render(data, self._truth)
 
     def _capture(self, e: int, stamp: float) -> None:
-        f, rng = self.faults, self.rng
+        f, rng = self.env_faults[e], self.rng
         self.frames[e] += 1
         if self._freeze_left[e] > 0:  # a stuck driver: the old image again, stamped anew
             self._freeze_left[e] -= 1
@@ -205,7 +211,7 @@ class PlantDepthCamera:
             image = self._last[e].copy()
         else:
             image = self.noise.apply(self.true_depth(e), rng).astype(np.float32)
-            image[:, : self._blind] = 0.0  # a covered lens: no depth
+            image[:, : self._blind[e]] = 0.0  # a covered lens: no depth
             self._last[e] = image
             if f.freeze and rng.random() < f.freeze:
                 self._freeze_left[e] = f.freeze_frames
@@ -245,7 +251,9 @@ class PlantDepthCamera:
             "camera": self.block.camera,
             "rate_hz": self.rate,
             "latency_s": self.latency,
-            "faults": self.faults.to_dict(),
+            "faults": self.faults.to_dict()
+            if len(set(self.env_faults)) == 1
+            else [f.to_dict() for f in self.env_faults],
             **{
                 k: getattr(self, k).tolist()
                 for k in ("frames", "delivered", "dropped", "spiked", "frozen")

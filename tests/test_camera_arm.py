@@ -16,7 +16,7 @@ from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.backends.sim.task_scene import TaskScene
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.policies.camera_student import BLOCK
-from tests.test_camera import needs_gl
+from tests.test_camera import egl_works, needs_gl  # noqa: F401 - the skipif names egl_works
 
 POLICY = Path(__file__).resolve().parents[1] / "sim2real" / "policies" / "arm_camera.onnx"
 

@@ -7,14 +7,12 @@ task scene's ``goal_camera`` (``sim2real/robots/arm3/arm3_scene.xml``: a fixed c
 front of the arm's plane, the goal marker 15 cm in front of the goal), clipped to 1.00-1.22 m
 so that the marker is the only thing in range (the arm lies at 1.255 m and beyond).
 
-Network (ours, small enough to train on two CPU cores in minutes): a 3 x 3 convolution (8
-channels, ReLU; 3 pixels are 11 cm at the arm's plane, the marker's 12 cm) and a 1 x 1 one over
-the 48 x 36 image, then a spatial softmax per channel (Levine, Finn,
-Darrell and Abbeel, JMLR 2016, "End-to-end training of deep visuomotor policies", section 4.2:
-each channel's expected image position, a keypoint), the 8 keypoints (x, y) beside the 9
-proprioceptive entries into the teacher's actor shape (64, 64, tanh), the action clipped to
-[-1, 1] (baked, as the shipped policy's). A linear head reads the goal's (x, y) from the
-keypoints in training only (an auxiliary loss; not in the graph).
+Network (ours, small enough to train on two CPU cores in minutes): a fixed marker detector
+(:class:`MarkerCentroid`: the centroid of the pixels in range, weighted by how near they are,
+and their share of the frame; no learned weights, so the camera's image needs no convolution
+trained on a CPU) beside the 9 proprioceptive entries into the teacher's actor shape (64, 64,
+tanh), the action clipped to [-1, 1] (baked, as the shipped policy's). The MLP learns the
+image-to-goal geometry (the camera's pose and field of view) from the teacher's actions.
 """
 
 from __future__ import annotations
@@ -64,34 +62,40 @@ def student_spec(teacher_spec, block: DepthImageBlock = BLOCK):
     return replace(teacher_spec, observation_blocks=blocks, images=(block,), parity={})
 
 
-class SpatialSoftmax(nn.Module):
-    """(batch, channels, rows, columns) -> (batch, 2 channels): each channel's softmax-weighted
-    mean (x, y) pixel position, in [-1, 1] (x along the columns, y along the rows)."""
+class MarkerCentroid(nn.Module):
+    """(batch, frames, rows, columns) centred depth -> (batch, 3): the newest frame's in-range
+    pixels' centroid (x along the columns, y along the rows, each in [-1, 1]) and their weight
+    (summed over the pixels, over 10: a marker about 0.2), each pixel weighted by
+    ``relu(threshold - depth)`` (the marker reads -0.1 to 0.2, the clip's far end and a hole
+    0.5, a noisy pixel of the arm leaking past the clip above 0.4: weight 0). Fixed, not learned:
+    a classic marker detector in the graph."""
 
-    def __init__(self, rows: int, columns: int):
+    def __init__(self, rows: int, columns: int, threshold: float = 0.4):
         super().__init__()
         ys, xs = torch.meshgrid(
             torch.linspace(-1, 1, rows), torch.linspace(-1, 1, columns), indexing="ij"
         )
         self.register_buffer("grid", torch.stack([xs.flatten(), ys.flatten()], 1))  # (rc, 2)
+        self.threshold = float(threshold)
 
-    def forward(self, maps: torch.Tensor) -> torch.Tensor:
-        b, c = maps.shape[0], maps.shape[1]
-        weights = torch.softmax(maps.reshape(b, c, -1), dim=-1)  # (b, c, rc)
-        return torch.matmul(weights, self.grid).reshape(b, 2 * c)
+    def forward(self, depth: torch.Tensor) -> torch.Tensor:
+        b = depth.shape[0]
+        w = torch.relu(self.threshold - depth[:, -1].reshape(b, -1))  # (b, rc)
+        mass = w.sum(dim=1, keepdim=True)
+        centre = torch.matmul(w, self.grid) / (mass + 1e-6)
+        return torch.cat([centre, mass / 10.0], dim=1)
 
 
 class CameraActor(nn.Module):
     """``(obs (batch, obs_dim), depth (batch, frames, rows, columns)) -> action (batch, act)``
-    in [-1, 1] (module docstring). ``keypoints(depth)`` (batch, 2 channels) feeds ``goal_head``
-    in training."""
+    in [-1, 1] (module docstring): :class:`MarkerCentroid`'s 3 features beside the
+    proprioceptive vector into an MLP (tanh), the action clipped."""
 
     def __init__(
         self,
         obs_dim: int,
         act_dim: int,
         image: tuple[int, int, int],
-        channels: int = 8,
         hidden: tuple[int, ...] = (64, 64),
     ):
         super().__init__()
@@ -99,30 +103,21 @@ class CameraActor(nn.Module):
             "obs_dim": obs_dim,
             "act_dim": act_dim,
             "image": list(image),
-            "channels": channels,
             "hidden": list(hidden),
         }
-        frames, rows, columns = image
-        self.conv = nn.Sequential(
-            nn.Conv2d(frames, channels, 3, padding=1),
-            nn.ReLU(),
-            nn.Conv2d(channels, channels, 1),
-        )
-        self.softmax = SpatialSoftmax(rows, columns)
-        layers, width = [], obs_dim + 2 * channels
+        self.marker = MarkerCentroid(image[1], image[2])
+        layers, width = [], obs_dim + 3
         for h in hidden:
             layers += [nn.Linear(width, h), nn.Tanh()]
             width = h
         self.mlp = nn.Sequential(*layers, nn.Linear(width, act_dim))
-        self.goal_head = nn.Linear(2 * channels, 2)
 
-    def keypoints(self, depth: torch.Tensor) -> torch.Tensor:
-        # centred depth: the marker (nearer) reads below the background's +0.5
-        return self.softmax(self.conv(0.5 - depth))
+    def features(self, obs: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        """(batch, obs_dim + 3): the MLP's input."""
+        return torch.cat([obs, self.marker(depth)], dim=1)
 
     def forward(self, obs: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
-        features = torch.cat([obs, self.keypoints(depth)], dim=1)
-        return torch.clamp(self.mlp(features), -1.0, 1.0)
+        return torch.clamp(self.mlp(self.features(obs, depth)), -1.0, 1.0)
 
 
 def save_camera_actor(path: Path, actor: CameraActor, spec, info: dict) -> None:
@@ -151,7 +146,7 @@ def load_camera_actor(path: Path):
     if not isinstance(d, dict) or d.get("format") != "sim2real-camera-actor":
         raise ValueError(f"{path}: field 'format': expected 'sim2real-camera-actor'")
     a = d["architecture"]
-    actor = CameraActor(a["obs_dim"], a["act_dim"], tuple(a["image"]), a["channels"], a["hidden"])
+    actor = CameraActor(a["obs_dim"], a["act_dim"], tuple(a["image"]), tuple(a["hidden"]))
     actor.load_state_dict(d["state_dict"])
     return actor.eval(), PolicySpec.from_json(d["spec"], source=str(path)), d["info"]
 

@@ -16,14 +16,14 @@ delivered 40 ms late), read by the runtime's own camera stage.
 DAgger (Ross, Gordon and Bagnell, AISTATS 2011): round 0 the teacher drives; in round ``i`` each
 env is driven by the teacher with probability ``beta_i`` (``--betas``) and by the student
 otherwise, the teacher's action on the states visited is the label, and the student is trained
-on everything gathered so far (mean squared action error plus ``--goal-weight`` times the goal's
-squared (x, y) error from the keypoints, an auxiliary loss). Frames are stored every
-``--store-every`` ticks (a frame is held for 6-7 ticks anyway).
+on everything gathered so far (mean squared action error). What is stored every
+``--store-every`` ticks is the MLP's input (the proprioceptive vector and the fixed marker
+detector's features of the frame the runtime's camera stage gave that tick).
 
 The end: the student alone and the teacher alone each run ``--eval-seconds`` on the same seed
 (goals reached / goals decided in these episodes, printed); the student is written to ``--out``
 (``.pt``) with its two-input ONNX graph beside it (parity with torch checked) and its curve
-(``.curve.json``).
+(``.curve.json``); each round's student is kept in ``--logdir``.
 """
 
 from __future__ import annotations
@@ -47,9 +47,6 @@ from sim2real.policies.envs import ReachConfig, ReachTask
 from sim2real.policies.train import start_poses
 from sim2real.robots import load_robot
 
-#: The goal's (x, y) divided by this for the auxiliary loss, m (arm3's reach, 0.9 m).
-GOAL_SCALE = 0.9
-
 
 def _rollout(task, teacher, teacher_spec, student, teacher_envs, ticks, store_every):
     """Run ``ticks`` control periods; envs in ``teacher_envs`` (bool) act by the teacher, the
@@ -58,55 +55,49 @@ def _rollout(task, teacher, teacher_spec, student, teacher_envs, ticks, store_ev
     envs = task.envs
     tobs = np.zeros((envs, teacher_spec.obs_dim), np.float32)
     cameras = task.learner_tick.cameras
-    stored = {"obs": [], "image": [], "action": [], "goal": []}
+    stored = {"features": [], "action": []}
     reached = decided = 0
+    goals = task.task  # the episodes' counts: this rollout's are those past where it began
+    r0, d0 = goals.reached.copy(), goals.reached + goals.missed
     for t in range(ticks):
         teacher_spec.observation(task.state, task.goal, out=tobs)
         with torch.no_grad():
             label = teacher(torch.from_numpy(tobs)).numpy()
             action = label.copy()
-            if student is not None and not teacher_envs.all():
-                mine = student(torch.from_numpy(task.obs), torch.from_numpy(cameras.image))
+            features = student.features(torch.from_numpy(task.obs), torch.from_numpy(cameras.image))
+            if not teacher_envs.all():
+                mine = torch.clamp(student.mlp(features), -1.0, 1.0)
                 action[~teacher_envs] = mine.numpy()[~teacher_envs]
         if t % store_every == 0:
-            stored["obs"].append(task.obs.copy())
-            stored["image"].append(cameras.image.astype(np.float16))
+            stored["features"].append(features.numpy().copy())
             stored["action"].append(label)
-            stored["goal"].append(task.goal[:, :2].astype(np.float32) / GOAL_SCALE)
         _, _, terminated, truncated = task.step(action)
         done = terminated | truncated
         if done.any():
-            reached += int(task.task.reached[done].sum())
-            decided += int((task.task.reached + task.task.missed)[done].sum())
+            reached += int((goals.reached - r0)[done].sum())
+            decided += int((goals.reached + goals.missed - d0)[done].sum())
             task.reset(done)
-    reached += int(task.task.reached.sum())
-    decided += int((task.task.reached + task.task.missed).sum())
+            r0[done], d0[done] = 0, 0
+    reached += int((goals.reached - r0).sum())
+    decided += int((goals.reached + goals.missed - d0).sum())
     return {k: np.concatenate(v) for k, v in stored.items()}, reached, decided
 
 
-def _fit(student, data, steps, batch, lr, goal_weight, rng):
-    """``steps`` Adam steps on minibatches of ``data``; the last 100 steps' mean losses."""
-    opt = torch.optim.Adam(student.parameters(), lr=lr)
-    n = len(data["obs"])
-    obs, action = torch.from_numpy(data["obs"]), torch.from_numpy(data["action"])
-    goal = torch.from_numpy(data["goal"])
+def _fit(student, data, steps, batch, lr, rng):
+    """``steps`` Adam steps on minibatches of ``data`` (its MLP inputs, ``features``); the last
+    100 steps' mean squared action error."""
+    opt = torch.optim.Adam(student.mlp.parameters(), lr=lr)
+    n = len(data["features"])
+    features, action = torch.from_numpy(data["features"]), torch.from_numpy(data["action"])
     losses = []
-    student.train()
     for _ in range(steps):
         idx = torch.from_numpy(rng.integers(0, n, batch))
-        image = torch.from_numpy(data["image"][idx.numpy()].astype(np.float32))
-        keypoints = student.keypoints(image)
-        features = torch.cat([obs[idx], keypoints], dim=1)
-        act_loss = torch.mean((torch.clamp(student.mlp(features), -1, 1) - action[idx]) ** 2)
-        goal_loss = torch.mean((student.goal_head(keypoints) - goal[idx]) ** 2)
-        loss = act_loss + goal_weight * goal_loss
+        loss = torch.mean((torch.clamp(student.mlp(features[idx]), -1, 1) - action[idx]) ** 2)
         opt.zero_grad()
         loss.backward()
         opt.step()
-        losses.append((act_loss.item(), goal_loss.item()))
-    student.eval()
-    tail = np.mean(losses[-100:], axis=0)
-    return {"action_mse": float(tail[0]), "goal_mse": float(tail[1])}
+        losses.append(loss.item())
+    return {"action_mse": float(np.mean(losses[-100:]))}
 
 
 def _task(args, robot, spec, seed):
@@ -138,12 +129,12 @@ def train(args: argparse.Namespace) -> dict:
         )
         torch.set_num_threads(args.threads)
         data = new if data is None else {k: np.concatenate([data[k], new[k]]) for k in data}
-        fit = _fit(student, data, args.fit_steps, args.batch, args.lr, args.goal_weight, rng)
+        fit = _fit(student, data, args.fit_steps, args.batch, args.lr, rng)
         row = {
             "round": i,
             "beta": beta,
             "student_envs": int((~teacher_envs).sum()),
-            "samples": len(data["obs"]),
+            "samples": len(data["features"]),
             "goals_reached": reached,
             "goals_decided": decided,
             "wall_s": round(time.perf_counter() - start, 1),
@@ -151,7 +142,10 @@ def train(args: argparse.Namespace) -> dict:
         }
         curve.append(row)
         print(json.dumps(row), flush=True)
-        save_camera_actor(args.out.with_suffix(f".round{i}.pt"), student, spec, {"curve": curve})
+        args.logdir.mkdir(parents=True, exist_ok=True)  # each round's student, to compare
+        save_camera_actor(
+            args.logdir / f"{args.out.stem}.round{i}.pt", student, spec, {"curve": curve}
+        )
     evaluation = _evaluate(args, robot, spec, teacher, teacher_spec, student)
     print(json.dumps(evaluation), flush=True)
     info = {
@@ -202,12 +196,12 @@ def _parser() -> argparse.ArgumentParser:
         "--start-poses", type=Path, default=Path("sim2real/policies/arm3_missed_poses.json")
     )
     p.add_argument("--store-every", type=int, default=2, help="ticks between stored samples")
-    p.add_argument("--fit-steps", type=int, default=800, help="Adam steps per round")
-    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--fit-steps", type=int, default=2000, help="Adam steps per round")
+    p.add_argument("--batch", type=int, default=512)
     p.add_argument("--lr", type=float, default=1e-3)
-    p.add_argument("--goal-weight", type=float, default=1.0, help="the auxiliary goal loss's")
     p.add_argument("--eval-seconds", type=float, default=20.0)
-    p.add_argument("--threads", type=int, default=2, help="torch threads when fitting")
+    p.add_argument("--threads", type=int, default=1, help="torch threads when fitting")
+    p.add_argument("--logdir", type=Path, default=Path("runs/train_camera"))
     p.add_argument("--out", type=Path, default=Path("sim2real/policies/arm_camera.pt"))
     return p
 

@@ -231,6 +231,16 @@ class OnnxPolicy:
         if self.states:
             self.reset()
 
+    def bind_batch(self, batch: int) -> None:
+        """Bind the graph's inputs for ``batch`` envs now (a call with another batch does it
+        too): the image inputs (:attr:`images`) the runtime writes before its first call are
+        then of its batch.
+
+        Raises:
+            ValueError: the graph has a fixed batch size and ``batch`` differs."""
+        if batch != self._batch:
+            self._bind(batch)
+
     def _runner(self):
         """The session's public ``run_with_iobinding`` of :attr:`_binding`, bound once (not its
         C++ method behind the wrapper, a private attribute of ONNX Runtime: docs/speed.md)."""

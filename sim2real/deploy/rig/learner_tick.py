@@ -1,14 +1,15 @@
-"""A training episode's control period on a rig's runtime stages (:class:`LearnerTick`), the
-learner's action in the policy's slot.
+"""A training episode's control period on a rig's runtime stages (:class:`LearnerTick`), the learner's
+action in the policy's slot.
 
-The stages and their order are the runtime's tick (:meth:`sim2real.deploy.runtime.Runtime.tick`)
-cut where a learner acts: the action to a target, the guard, the smoother and the guard's motion
-envelope, the drives and the physics, the plant-side faults and the frame's, the Kalman filter,
-the camera's image input (a spec with an image block), the thermal derating, the re-anchoring,
-the kinematics and the observation; without the runtime's supervision (no RAMP_IN, no safe
-stops: an episode ends instead, no screen but a fault's non-finite action holding the last one). What the guard and the smoother changed counts
-as an intervention, by the rig's :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`
-(the soak's definition). The reach env (:mod:`sim2real.policies.envs`) steps its episodes here.
+The stages and their order are the runtime's tick (:meth:`sim2real.deploy.runtime.Runtime.tick`) cut
+where a learner acts: the action to a target, the guard, the smoother and the guard's motion
+envelope, the drives and the physics, the plant-side faults and the frame's, the Kalman filter, the
+camera's image input (a spec with an image block), the thermal derating, the re-anchoring, the
+kinematics and the observation; without the runtime's supervision (no RAMP_IN, no safe stops: an
+episode ends instead, no screen but a fault's non-finite action holding the last one). What the
+guard and the smoother changed counts as an intervention, by the rig's
+:class:`~sim2real.deploy.monitors.interventions.InterventionMonitor` (the soak's definition). The
+reach env (:mod:`sim2real.policies.envs`) steps its episodes here.
 """
 
 from __future__ import annotations

@@ -105,6 +105,9 @@ class CameraInput:
         """The tick's :meth:`update`, written into ``policy.images[block.input]`` (the array an
         :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` binds), and the safe stop
         (``stale_sensor``) of the envs whose camera is stale."""
+        bind = getattr(policy, "bind_batch", None)
+        if bind is not None:  # its image inputs of this batch before the first call
+            bind(self.envs)
         images = getattr(policy, "images", {}).get(self.block.input)
         supervision.safe_stop(self.update(frame, images), "stale_sensor")
 

@@ -91,3 +91,29 @@ def _spec_with_block(robot):
     from sim2real.deploy.spec.policy_spec import PolicySpec
 
     return replace(PolicySpec.for_robot(robot), images=(BLOCK,))
+
+
+@needs_gl
+def test_a_soak_of_the_camera_policy_draws_each_sessions_camera_faults_and_reports_them(
+    tmp_path, capsys
+):
+    from sim2real.eval import cli
+
+    out = tmp_path / "soak"
+    code = cli.main(
+        ["--robot", "arm3", "--policy", str(POLICY), "--hours", "0.002", "--sessions", "2",
+         "--sessions-per-process", "2", "--seed", "4", "--out", str(out), "--min-success", "0",
+         "--min-window-success", "0", "--max-interventions", "1", "--no-progress", "--no-film"]
+    )  # fmt: skip  # both sessions in one batch: one plant camera, each env its own faults
+    report = json.loads((out / "report.json").read_text())
+    assert code == report["exit_code"]
+    cameras = [s["camera"] for s in report["sessions"]]
+    assert [c["frames"] for c in cameras] == [217, 217]  # at 0, 1/30 .. 7.2 s
+    assert cameras[0]["faults"] != cameras[1]["faults"]  # drawn from each session's seed
+    assert all(c["faults"]["drop"] > 0 and c["dropped"] <= c["frames"] for c in cameras)
+    assert all(c["frames_taken"] + c["dropped"] + c["frozen"] <= c["frames"] for c in cameras)
+    said = capsys.readouterr().out
+    assert "camera       seed0004: 'goal_camera' 30 Hz, 217 frames; met " in said
+    assert "camera       seed0005: 'goal_camera' 30 Hz" in said
+    # seed 5 draws a frozen spell: the runtime stops the robot and says why
+    assert "camera stop  at " in said and "frames repeated with new stamps (frozen)" in said

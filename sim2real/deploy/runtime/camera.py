@@ -61,6 +61,7 @@ class CameraInput:
         self._raw = np.full((envs, *block.shape), np.nan, np.float32)  # the last raw frame taken
         self.image = np.zeros((envs, *block.input_shape), np.float32)
         self.stamp = np.full(envs, -np.inf)
+        self._seen = np.full(envs, -np.inf)  # the newest stamp looked at, fresh or repeated
         self._start = np.nan  # the first tick's time: a camera's first frame is due by then
         self.time_since_fresh = np.full(envs, np.inf)
         self.stale = np.zeros(envs, dtype=bool)
@@ -84,8 +85,9 @@ class CameraInput:
         if depth is not None:
             depth = check_frames(depth, self.block, self.envs, "frame.depth_image")
             stamp = np.asarray(frame.depth_stamp, dtype=float)
-            newer = stamp > self.stamp  # NaN: nothing delivered
+            newer = stamp > self._seen  # NaN: nothing delivered; a held frame: seen once
             for e in np.flatnonzero(newer):
+                self._seen[e] = stamp[e]
                 if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
                     self.repeated[e] += 1
                     continue
@@ -155,6 +157,7 @@ class CameraInput:
             "raw": self._raw,
             "image": self.image,
             "stamp": self.stamp,
+            "seen": self._seen,
             "taken": self.taken,
             "repeated": self.repeated,
             "oldest": self.oldest,

@@ -251,11 +251,14 @@ def camera_lines(s: dict) -> list[str]:
         f"lens {100 * f['occlusion']:.1f} % covered",
         f"mount knocked {knocked:.2f} deg",
     ]
-    return [
+    lines = [
         f"  camera       {s['id']}: '{c['camera']}' {c['rate_hz']:g} Hz, {c['frames']} frames; "
         f"met {', '.join(met)}; oldest frame used {1000 * c['oldest_s']:.0f} ms; safe stops "
         f"for a stale camera {c['stale_stops']}"
     ]
+    for stop in c.get("stops", [])[:3]:
+        lines.append(f"  camera stop  at {stop['t_s']:.1f} s: {stop['verdict']}")
+    return lines
 
 
 def _check_lines(report: dict) -> list[str]:

@@ -51,7 +51,8 @@ def show_goals(camera, goal: np.ndarray) -> None:
 def camera_result(batch, e: int) -> dict | None:
     """Session ``e``'s ``camera`` section: the faults drawn, the plant camera's frames
     (captured, delivered, dropped, late, frozen), the runtime's (taken, repeated, the oldest
-    age) and the camera's safe stops (``stale_sensor``); None without a camera."""
+    age) and the camera's safe stops (``stale_sensor``, with the runtime's verdict of each: its
+    frames frozen, or none arriving); None without a camera."""
     camera = getattr(batch, "camera", None)
     if camera is None:
         return None
@@ -69,4 +70,10 @@ def camera_result(batch, e: int) -> dict | None:
         "frames_repeated": int(stage.repeated[e]),
         "oldest_s": round(float(stage.oldest[e]), 6),
         "stale_stops": int(rt.counters.faults["stale_sensor"][e]),
+        # the runtime's record of each stop the camera made (its verdict: frozen or silent)
+        "stops": [
+            {"t_s": r["t_s"], "camera_s": r["camera_s"], "verdict": r["verdict"]}
+            for r in rt.stale_stops.records
+            if r["env"] == e and r.get("camera_s") is not None
+        ],
     }

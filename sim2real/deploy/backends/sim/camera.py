@@ -134,9 +134,10 @@ class PlantDepthCamera:
         faults: The session's faults (default none), or one per env (a soak's sessions).
             seed: Of the noise and fault draws.
         where: Named in a refusal (the robot's MJCF).
-        scene: The robot's task scene (:class:`~sim2real.deploy.backends.sim.task_scene.
-            TaskScene`: the robot's MJCF with a goal marker and the cameras watching the task),
-            rendered instead of the plant's models where given; None: the plant's models.
+        scene: The robot's task scene
+            (:class:`~sim2real.deploy.backends.sim.task_scene.TaskScene`: the robot's MJCF with
+            a goal marker and the cameras watching the task), rendered instead of the plant's
+            models where given; None: the plant's models.
 
     Attributes:
         frames: (envs,) frames captured; delivered, dropped, spiked, frozen: counts (envs,).

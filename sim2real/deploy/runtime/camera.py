@@ -67,6 +67,7 @@ class CameraInput:
         self.stale = np.zeros(envs, dtype=bool)
         self.taken = np.zeros(envs, dtype=np.int64)
         self.repeated = np.zeros(envs, dtype=np.int64)
+        self._frozen = np.zeros(envs, dtype=np.int64)  # repeated since the last fresh frame
         self.oldest = np.zeros(envs)
         #: ring positions of the graph's frames, oldest first, relative to the newest
         self._back = block.skip * np.arange(block.frames - 1, -1, -1)
@@ -90,6 +91,7 @@ class CameraInput:
                 self._seen[e] = stamp[e]
                 if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
                     self.repeated[e] += 1
+                    self._frozen[e] += 1
                     continue
                 self._push(e, depth[e], stamp[e])
         if np.isnan(self._start):
@@ -121,16 +123,18 @@ class CameraInput:
         else:
             self._ring[e, self.taken[e] % span] = image
         self.taken[e] += 1
+        self._frozen[e] = 0
         self._raw[e] = depth
         self.stamp[e] = stamp
         newest = (self.taken[e] - 1) % span
         self.image[e] = self._ring[e, (newest - self._back) % span]
 
     def stale_phrase(self, e: int) -> str:
-        """What env ``e``'s camera did, for a stale stop's verdict: frames repeated (frozen) or
-        none fresh."""
-        if self.repeated[e]:
-            return f"{int(self.repeated[e])} frames repeated with new stamps (frozen)"
+        """What env ``e``'s camera did, for a stale stop's verdict: frames repeated since its last
+        fresh one (frozen) or none fresh."""
+        n = int(self._frozen[e])
+        if n:
+            return f"{n} frame{'s' if n != 1 else ''} repeated with new stamps (frozen)"
         return "no fresh frame arrived (dropped or late)"
 
     def reset(self, envs: np.ndarray) -> None:
@@ -160,6 +164,7 @@ class CameraInput:
             "seen": self._seen,
             "taken": self.taken,
             "repeated": self.repeated,
+            "frozen": self._frozen,
             "oldest": self.oldest,
         }
 

@@ -9,7 +9,7 @@ ONNX   := $(POLICY:.pt=.onnx)
 export ORT_DISABLE_TELEMETRY := 1
 export MPLBACKEND := Agg
 
-.PHONY: install run test docs lint format export train train-position hil soak nightly sim2sim sysid bench clean
+.PHONY: install run test docs lint format export train train-position train-camera hil soak nightly sim2sim sysid bench clean
 
 install: $(STAMP)
 
@@ -110,6 +110,13 @@ train: install
 train-position: install
 	$(PY) -m sim2real.policies.train --mode position --start-poses sim2real/policies/arm3_missed_poses.json \
 		--out sim2real/policies/arm_position.pt
+
+# The camera arm policy (docs/cameras.md): a student distilled by DAgger from the shipped arm.pt
+# that sees the goal only in a depth image of arm3's task scene (sim2real/policies/train_camera.py);
+# writes sim2real/policies/arm_camera.pt, .onnx and .curve.json. Headless: MUJOCO_GL=egl.
+TRAIN_CAMERA := --envs 8 --round-seconds 8 --betas 1,0.5,0.2,0,0,0 --eval-seconds 6
+train-camera: install
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m sim2real.policies.train_camera $(TRAIN_CAMERA)
 
 # The ONNX file the soak targets run, re-exported whenever the checkpoint changes.
 $(ONNX): $(POLICY) $(STAMP)

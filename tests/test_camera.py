@@ -164,6 +164,12 @@ def test_the_camera_stage_stacks_frames_skip_apart_and_takes_a_repeated_image_fo
         stale = stage.update(frames.deliver(0.04 * k, frozen, 0.04 * k))
     assert stage.repeated[0] == 6 and stage.taken[0] == 6 and stale[0]
     assert stage.time_since_fresh[0] == pytest.approx(0.04 * 11 - 0.2)
+    for t in (0.45, 0.46):  # the last frozen frame held over two more ticks: still one frame
+        stage.update(frames.deliver(t, frozen, 0.04 * 11))
+    assert stage.repeated[0] == 6 and stage.stale_phrase(0).startswith("6 frames repeated")
+    stage.update(frames.deliver(0.48, value(12), 0.48))  # fresh, then frozen once: a stop says 1
+    stage.update(frames.deliver(0.52, value(12), 0.52))
+    assert stage.repeated[0] == 7 and stage.stale_phrase(0).startswith("1 frame repeated")
     state = stage.state_dict()
     other = CameraInput(block, 1, stale_limit=0.2)
     other.load_state_dict(state)

@@ -224,8 +224,10 @@ def test_deploy_run_refuses_a_colour_camera_the_robots_mjcf_lacks_in_one_line(
     code = deploy_run_main(["--robot", "arm3", "--policy", str(policy.path), "--duration", "0.2"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 3 and len([line for line in err if "error" in line]) == 1
-    assert err[-1].startswith(f"deploy-run: error: {arm3.mjcf_path}: images[0].camera")
-    assert '<camera name="overhead">' in err[-1] and "(its cameras: none)" in err[-1]
+    # a camera the robot's MJCF lacks is looked for in its task scene (arm3's: a goal camera)
+    scene = arm3.mjcf_path.parent / "arm3_scene.xml"
+    assert err[-1].startswith(f"deploy-run: error: {scene}: images[0].camera")
+    assert '<camera name="overhead">' in err[-1] and "(its cameras: ['goal_camera'])" in err[-1]
 
 
 def test_a_resize_bigger_than_the_render_is_refused_naming_the_file_and_the_field(arm3, tmp_path):

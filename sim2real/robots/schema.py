@@ -320,9 +320,15 @@ class TaskConfig(_Strict):
     uniformly within that fraction of each joint's range about home (clipped into the soft
     limits), kept when inside the box: every goal is one the arm reaches (a box corner may not
     be: 4 % of so101's uniform box goals lie over 3 cm from any pose within the soft limits).
+
+    ``scene``: an MJCF in the robot's folder that a camera watching the task renders: the robot's
+    MJCF included first, a mocap body ``goal`` the goal moves and the cameras outside the robot
+    (``sim2real.deploy.backends.sim.task_scene``); drawn, never simulated, and, as the rest of
+    ``[task]``, left out of the description hash.
     """
 
     region: Literal["planar_annulus", "box"]
+    scene: str | None = None  # file name in the robot's folder
     joint_fraction: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
     radius: tuple[NonNegative, NonNegative] | None = None  # m
     angle: tuple[Finite, Finite] | None = None  # rad

@@ -44,6 +44,7 @@ from sim2real.deploy.cli.exteroception import (
     attach_height_map,
     camera_report,
     close_camera,
+    show_goal,
 )
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
@@ -130,6 +131,7 @@ def run(args) -> int:
     # the rig (its compiled stages, warmed) before the bring-up (in _run_rig): a robot brought
     # up holds at home, and what plays on its clock (a scripted remote) waits on no compile
     rig = build_rig(args, robot, policies, backend, injector, clock, fixed, mapping, motion, after)
+    show_goal(backend, rig.runtime.goal)  # a task scene's marker at the runtime's goals
     try:
         return _run_rig(args, rig, realtime, injector, clock, rt_request)
     finally:

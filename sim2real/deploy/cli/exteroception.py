@@ -176,3 +176,11 @@ def camera_report(rt, backend) -> dict | None:
     source = getattr(backend, "camera_source", None)
     key = "hardware" if hasattr(source, "feed") else "plant"
     return {**rt.cameras.summary(), key: source.summary() if source is not None else None}
+
+
+def show_goal(backend, goal) -> None:
+    """The plant camera's task scene (where the robot has one) shows ``goal`` ((envs, 3) m, the
+    runtime's goals, written in place each tick) at its goal marker."""
+    scene = getattr(getattr(backend, "camera_source", None), "scene", None)
+    if scene is not None:
+        scene.goal = goal

@@ -233,6 +233,16 @@ class OnnxPolicy:
         if self.states:
             self.reset()
 
+    def bind_batch(self, batch: int) -> None:
+        """Bind the graph's inputs for ``batch`` envs now (a call with another batch does it
+        too): the image inputs (:attr:`images`) the runtime writes before its first call are
+        then of its batch.
+
+        Raises:
+            ValueError: the graph has a fixed batch size and ``batch`` differs."""
+        if batch != self._batch:
+            self._bind(batch)
+
     def _runner(self):
         """The session's public ``run_with_iobinding`` of :attr:`_binding`, bound once (not its
         C++ method behind the wrapper, a private attribute of ONNX Runtime: docs/speed.md)."""
@@ -277,13 +287,6 @@ class OnnxPolicy:
             np.copyto(self._obs, obs, casting="same_kind")
         self._run()
         return self._action if self._finish is None else self._finish()
-
-    def bind_batch(self, batch: int) -> None:
-        """Bind the buffers for ``batch`` envs now, as the first call of that batch would (a
-        no-op when bound for it): the runtime's camera stage writes the image inputs
-        (:attr:`images`) before the first call. Raises ValueError: a fixed batch size differs."""
-        if batch != self._batch:
-            self._bind(batch)
 
     def _bind_input(self, array: np.ndarray) -> None:
         """Bind ``array`` (float32 (batch, obs_dim), C-contiguous) as the graph's input."""

@@ -1,14 +1,15 @@
-"""A training episode's control period on a rig's runtime stages (:class:`LearnerTick`), the
-learner's action in the policy's slot.
+"""A training episode's control period on a rig's runtime stages (:class:`LearnerTick`), the learner's
+action in the policy's slot.
 
-The stages and their order are the runtime's tick (:meth:`sim2real.deploy.runtime.Runtime.tick`)
-cut where a learner acts: the action to a target, the guard, the smoother and the guard's motion
-envelope, the drives and the physics, the plant-side faults and the frame's, the Kalman filter,
-the thermal derating, the re-anchoring, the kinematics and the observation; without the
-runtime's supervision (no RAMP_IN, no safe stops: an episode ends instead, no screen but a
-fault's non-finite action holding the last one). What the guard and the smoother changed counts
-as an intervention, by the rig's :class:`~sim2real.deploy.monitors.interventions.InterventionMonitor`
-(the soak's definition). The reach env (:mod:`sim2real.policies.envs`) steps its episodes here.
+The stages and their order are the runtime's tick (:meth:`sim2real.deploy.runtime.Runtime.tick`) cut
+where a learner acts: the action to a target, the guard, the smoother and the guard's motion
+envelope, the drives and the physics, the plant-side faults and the frame's, the Kalman filter, the
+camera's image input (a spec with an image block), the thermal derating, the re-anchoring, the
+kinematics and the observation; without the runtime's supervision (no RAMP_IN, no safe stops: an
+episode ends instead, no screen but a fault's non-finite action holding the last one). What the
+guard and the smoother changed counts as an intervention, by the rig's
+:class:`~sim2real.deploy.monitors.interventions.InterventionMonitor` (the soak's definition). The
+reach env (:mod:`sim2real.policies.envs`) steps its episodes here.
 """
 
 from __future__ import annotations
@@ -40,6 +41,9 @@ class LearnerTick:
         )
         self.estimator, self.kinematics, self.state = rt.estimator, rt.kinematics, rt.state
         self.guard, self.smoother = rt.guard, rt.smoother
+        #: the runtime's camera stage (a spec with an image block), else None: its ``image``
+        #: is the graph's image input after each step
+        self.cameras = rt.cameras
         envs, n = rt.envs, rt.n
         # the estimator's control input, the runtime's (SafetyGuard.estimator_input)
         self._input = self.guard.estimator_input(self.smoother)
@@ -77,6 +81,8 @@ class LearnerTick:
         if faults is not None:
             frame = faults.filter_frame(backend.time, frame)
         state = self.estimator.update(frame, state, self._input)
+        if self.cameras is not None:  # the image input (no safe stop: the episode goes on)
+            self.cameras.update(frame)
         state.last_action[:] = action
         guard.update_thermal(state.winding_temperature)
         reanchor(self.smoother, state, self._tracking, self._moved)

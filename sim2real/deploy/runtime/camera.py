@@ -80,6 +80,7 @@ class CameraInput:
         self.stale = np.zeros(envs, dtype=bool)
         self.taken = np.zeros(envs, dtype=np.int64)
         self.repeated = np.zeros(envs, dtype=np.int64)
+        self._frozen = np.zeros(envs, dtype=np.int64)  # repeated since the last fresh frame
         self.oldest = np.zeros(envs)
         #: ring positions of the graph's frames, oldest first, relative to the newest
         self._back = block.skip * np.arange(block.frames - 1, -1, -1)
@@ -103,6 +104,7 @@ class CameraInput:
                 self._looked[e] = stamp[e]
                 if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
                     self.repeated[e] += 1
+                    self._frozen[e] += 1
                     continue
                 self._push(e, depth[e], stamp[e])
         if np.isnan(self._start):
@@ -120,10 +122,10 @@ class CameraInput:
         """The tick's :meth:`update`, written into ``policy.images[block.input]`` (the array an
         :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` binds), and the safe stop
         (``stale_sensor``) of the envs whose camera is stale."""
+        bind = getattr(policy, "bind_batch", None)
+        if bind is not None:  # its image inputs of this batch before the first call
+            bind(self.envs)
         images = getattr(policy, "images", {}).get(self.block.input)
-        if images is not None and images.shape[0] != self.envs and hasattr(policy, "bind_batch"):
-            policy.bind_batch(self.envs)  # bound for another batch yet: bind it for ours first
-            images = policy.images.get(self.block.input)
         supervision.safe_stop(self.update(frame, images), "stale_sensor")
 
     def _push(self, e: int, depth: np.ndarray, stamp: float) -> None:
@@ -134,16 +136,18 @@ class CameraInput:
         else:
             self._ring[e, self.taken[e] % span] = image
         self.taken[e] += 1
+        self._frozen[e] = 0
         self._raw[e] = depth
         self.stamp[e] = stamp
         newest = (self.taken[e] - 1) % span
         self.image[e] = self._ring[e, (newest - self._back) % span]
 
     def stale_phrase(self, e: int) -> str:
-        """What env ``e``'s camera did, for a stale stop's verdict: frames repeated (frozen) or
-        none fresh."""
-        if self.repeated[e]:
-            return f"{int(self.repeated[e])} frames repeated with new stamps (frozen)"
+        """What env ``e``'s camera did, for a stale stop's verdict: frames repeated since its last
+        fresh one (frozen) or none fresh."""
+        n = int(self._frozen[e])
+        if n:
+            return f"{n} frame{'s' if n != 1 else ''} repeated with new stamps (frozen)"
         return "no fresh frame arrived (dropped or late)"
 
     def reset(self, envs: np.ndarray) -> None:
@@ -173,6 +177,7 @@ class CameraInput:
             "looked": self._looked,
             "taken": self.taken,
             "repeated": self.repeated,
+            "frozen": self._frozen,
             "oldest": self.oldest,
         }
 

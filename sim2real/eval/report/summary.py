@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from sim2real.eval.report.domain_account import domain_summary
 
 #: What the replays showed for a fall with no push, fault or stop before it, by its origin
@@ -81,6 +83,7 @@ def summary_text(report: dict) -> str:
     lines += _intervention_lines(t["interventions"])
     lines.append(_faults_line(t))
     for s in report.get("sessions", []):
+        lines += camera_lines(s)
         lines += exhibition_lines(s)
     peaks = ", ".join(f"{j} {p:.1f}" for j, p in t["thermal"]["peak_c"].items())
     lines.append(f"  peak winding degC {peaks}")
@@ -230,6 +233,36 @@ def _faults_line(t: dict) -> str:
             else ""
         )
     )
+
+
+def camera_lines(s: dict) -> list[str]:
+    """A camera policy's session: the camera faults it met (drawn for the session, and the
+    frames they hit) and the safe stops of a stale camera (``stale_sensor``, the first three with
+    the runtime's verdict); none without a camera (:func:`sim2real.eval.soak.camera_faults.
+    camera_result`)."""
+    c = s.get("camera")
+    if not c:
+        return []
+    f = c["faults"]
+    knocked = np.degrees(np.abs(f["extrinsic"])).max()
+    met = [
+        f"{c['dropped']} frames dropped",
+        f"{c['spiked']} late by {1000 * f['spike_latency']:.0f} ms",
+        f"{c['frozen']} frozen ({c['frames_repeated']} repeated seen)",
+        f"lens {100 * f['occlusion']:.1f} % covered",
+        f"mount knocked {knocked:.2f} deg",
+    ]
+    if f.get("lighting", 1.0) != 1.0:
+        met.append(f"light x{f['lighting']:.2f}")
+    stops = c.get("stale_stops", [])
+    lines = [
+        f"  camera       {s['id']}: '{c['camera']}' {c['rate_hz']:g} Hz, {c['frames']} frames; "
+        f"met {', '.join(met)}; oldest frame used {1000 * c['oldest_s']:.0f} ms; safe stops "
+        f"for a stale camera {len(stops)}"
+    ]
+    for stop in stops[:3]:
+        lines.append(f"  camera stop  at {stop['t_s']:.1f} s: {stop.get('verdict')}")
+    return lines
 
 
 def _check_lines(report: dict) -> list[str]:

@@ -14,7 +14,7 @@ runtime's camera stage (:mod:`sim2real.deploy.runtime.camera`): stale past its l
 ``stale_sensor`` like any sensor.
 
 Hooks (the only lines outside this module): :class:`sim2real.eval.soak.batch.SessionBatch`
-calls :func:`attach_session_cameras` before it makes its runtime;
+calls :func:`attach_session_cameras` before it makes its runtime and :func:`show_goals` after;
 :func:`sim2real.eval.soak.result.session_result` adds :func:`camera_result`'s section.
 """
 
@@ -63,15 +63,23 @@ def attach_session_cameras(backend, spec, configs, ranges: CameraFaultRanges | N
     return attach_plant_camera(backend, spec, faults=faults, seed=rngs)
 
 
+def show_goals(camera, goal) -> None:
+    """The camera's task scene (where the robot has one, :mod:`sim2real.deploy.backends.sim.
+    task_scene`) shows ``goal`` ((envs, 3) m, the runtime's goals, written in place each tick)
+    at its goal marker."""
+    if camera is not None and camera.scene is not None:
+        camera.scene.goal = goal
+
+
 def camera_result(session) -> dict:
     """The session result's ``camera`` section, ``{}`` without a camera: ``{"camera": {camera,
     kind, rate_hz, latency_s, faults (the drawn CameraFaults), frames, delivered, dropped,
     spiked, frozen (the plant's counts), frames_taken, frames_repeated (the runtime's: fresh
     frames and frozen ones refused), oldest_s (the largest age of the last fresh frame, s),
     stale_stops (the runtime's stale stops of this session that the camera caused, each
-    ``{t_s, camera_s, followed}``: its time, the last fresh frame's age and what the camera's
-    faults did in the second before, :meth:`~sim2real.deploy.backends.sim.plant_camera.
-    PlantCamera.recent`)}}``."""
+    ``{t_s, camera_s, followed, verdict}``: its time, the last fresh frame's age, what the
+    camera's faults did in the second before (:meth:`~sim2real.deploy.backends.sim.
+    plant_camera.PlantCamera.recent`) and the runtime's verdict)}}``."""
     b, e = session.batch, session.e
     source = getattr(b.backend, "camera_source", None)
     stage = getattr(b.rt, "cameras", None)
@@ -93,6 +101,7 @@ def camera_result(session) -> dict:
                     "t_s": r["t_s"],
                     "camera_s": r["camera_s"],
                     "followed": r.get("other_side", {}).get("camera_faults"),
+                    "verdict": r.get("verdict"),
                 }
                 for r in stops
             ],

@@ -22,11 +22,13 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+import mujoco
 import numpy as np
 
 from sim2real.deploy.backends.sim.depth_render import DepthRenderer
 from sim2real.deploy.backends.sim.plant_camera import CameraFaultRanges, CameraFaults, PlantCamera
 from sim2real.deploy.backends.sim.rgb_camera import PlantRgbCamera
+from sim2real.deploy.backends.sim.task_scene import task_scene
 from sim2real.deploy.spec.camera import DepthImageBlock
 
 __all__ = [
@@ -99,6 +101,10 @@ class PlantDepthCamera(PlantCamera):
         faults: The session's faults (default none; or one per env, :class:`PlantCamera`).
         seed: Of the noise and fault draws (or one generator per env).
         where: Named in a refusal (the robot's MJCF).
+        scene: The robot's task scene
+            (:class:`~sim2real.deploy.backends.sim.task_scene.TaskScene`: the robot's MJCF with
+            a goal marker and the cameras watching the task), rendered instead of the plant's
+            models where given; None: the plant's models.
 
     Attributes:
         frames: (envs,) frames captured; delivered, dropped, spiked, frozen: counts (envs,).
@@ -117,14 +123,15 @@ class PlantDepthCamera(PlantCamera):
         faults: CameraFaults | None = None,
         seed: int = 0,
         where: str = "MJCF",
+        scene=None,
     ):
         self.noise = DepthNoise() if noise is None else noise
-        super().__init__(plant, block, rate, latency, faults, seed, where, DepthRenderer)
+        super().__init__(plant, block, rate, latency, faults, seed, where, DepthRenderer, scene)
         self._truth = np.zeros(block.shape, np.float32)
 
     def true_depth(self, env: int = 0) -> np.ndarray:
         """(rows, columns) float32 m, the camera's true z-depth of env ``env`` now."""
-        return self.renderers[env].render(self.plant.datas[env], self._truth)
+        return self.renderers[env].render(self.scene_data(env), self._truth)
 
     def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
         image = self.noise.apply(self.true_depth(e), rng).astype(np.float32)
@@ -171,25 +178,32 @@ def attach_depth_camera(
 ) -> PlantCamera | None:
     """For a simulated plant (its ``models``, ``datas``) and a spec with an image block: the
     plant's camera (:class:`PlantDepthCamera` for a depth block,
-    :class:`sim2real.deploy.backends.sim.rgb_camera.PlantRgbCamera` for an RGB one) made the
-    runtime's frame source (``backend.camera_source``,
+    :class:`sim2real.deploy.backends.sim.rgb_camera.PlantRgbCamera` for an RGB one; a camera the
+    robot's MJCF lacks renders the robot's task scene where robot.toml names one,
+    :func:`~sim2real.deploy.backends.sim.task_scene.task_scene`: its goal marker then shows
+    ``camera.scene.goal``, which the run sets) made the runtime's frame source
+    (``backend.camera_source``,
     :func:`sim2real.deploy.runtime.camera.camera_stage`) and returned; else None (a backend that
     is no plant: its own driver writes the frames). ``noise``: the block's sensor model (None:
     the datasheet's); ``faults`` and ``seed`` as :class:`PlantCamera` takes them.
 
     Raises:
-        CameraError: the robot's MJCF has no camera of the block's name (one line naming the
-            MJCF file and ``images[0].camera``).
+        CameraError: the robot's MJCF (or task scene) has no camera of the block's name (one
+            line naming the file and ``images[0].camera``). ValueError: a task scene that does
+            not fit the robot.
     """
     images = getattr(spec, "images", ())
     if not images or not all(hasattr(backend, a) for a in ("models", "datas")):
         return None
     robot = getattr(backend, "robot", None)
-    where = f"{getattr(robot, 'mjcf_path', 'MJCF')}: images[0].camera"
-    if images[0].kind == "rgb":
-        camera = PlantRgbCamera(backend, images[0], rate, latency, noise, faults, seed, where)
-    else:
-        camera = PlantDepthCamera(backend, images[0], rate, latency, noise, faults, seed, where)
+    # a camera of the robot's own MJCF (on its head, its wrist) renders the plant; another (one
+    # watching the task) the robot's task scene, where robot.toml names one
+    own = mujoco.mj_name2id(backend.models[0], mujoco.mjtObj.mjOBJ_CAMERA, images[0].camera) >= 0
+    scene = None if robot is None or own else task_scene(robot, backend)
+    mjcf = getattr(robot, "mjcf_path", "MJCF") if scene is None else scene.path
+    where = f"{mjcf}: images[0].camera"
+    kind = PlantRgbCamera if images[0].kind == "rgb" else PlantDepthCamera
+    camera = kind(backend, images[0], rate, latency, noise, faults, seed, where, scene=scene)
     backend.camera_source = camera
     return camera
 

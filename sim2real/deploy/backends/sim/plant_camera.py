@@ -106,8 +106,8 @@ class PlantCamera:
     stamp_field = "depth_stamp"
     dtype = np.float32
 
-    def __init__(self, plant, block, rate, latency, faults, seed, where: str, renderer):
-        self.plant, self.block = plant, block
+    def __init__(self, plant, block, rate, latency, faults, seed, where: str, renderer, scene=None):
+        self.plant, self.block, self.scene = plant, block, scene
         self.rate = float(block.rate if rate is None else rate)
         self.latency = float(block.latency if latency is None else latency)
         if not (self.rate > 0 and self.latency >= 0):
@@ -131,7 +131,8 @@ class PlantCamera:
         else:
             self.rngs = list(seed)
             self.rng = self.rngs[0]
-        self.renderers = [renderer(m, block.camera, block.shape, where) for m in plant.models]
+        models = plant.models if scene is None else scene.models
+        self.renderers = [renderer(m, block.camera, block.shape, where) for m in models]
         for r, f in zip(self.renderers, self.env_faults, strict=True):
             if any(f.extrinsic):  # the camera knocked on its mount: its MuJoCo pose turned
                 turn, quat = np.zeros(4), np.zeros(4)
@@ -159,6 +160,15 @@ class PlantCamera:
         #: the most frames in flight at once: each stays at most latency + spike_latency s
         spike = max(f.spike_latency for f in self.env_faults)
         self.in_flight = int(np.ceil((self.latency + spike) * self.rate)) + 2
+
+    def scene_data(self, env: int):
+        """The ``MjData`` env ``env``'s camera renders: the plant's, or the robot's task scene
+        (:class:`~sim2real.deploy.backends.sim.task_scene.TaskScene`) given the plant's pose,
+        geometry and the goal."""
+        data = self.plant.datas[env]
+        if self.scene is not None:
+            data = self.scene.sync(env, data, self.renderers[env].model)
+        return data
 
     def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
         """Env ``e``'s image now through the sensor model, its covered columns blinded."""

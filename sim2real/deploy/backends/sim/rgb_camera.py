@@ -149,9 +149,10 @@ class PlantRgbCamera(PlantCamera):
         faults: CameraFaults | None = None,
         seed=0,
         where: str = "MJCF",
+        scene=None,
     ):
         self.noise = RgbNoise() if noise is None else noise
-        super().__init__(plant, block, rate, latency, faults, seed, where, RgbRenderer)
+        super().__init__(plant, block, rate, latency, faults, seed, where, RgbRenderer, scene)
         for r, f in zip(self.renderers, self.env_faults, strict=True):
             if f.lighting != 1.0:
                 r.set_lighting(f.lighting)
@@ -169,7 +170,7 @@ class PlantRgbCamera(PlantCamera):
 
     def true_image(self, env: int = 0) -> np.ndarray:
         """(rows, columns, 3) uint8, the rendered image of env ``env`` now (no sensor model)."""
-        return self.renderers[env].render(self.plant.datas[env], self._truth)
+        return self.renderers[env].render(self.scene_data(env), self._truth)
 
     def _sense(self, e: int, rng: np.random.Generator) -> np.ndarray:
         return self.sensor(e, self.true_image(e), rng)

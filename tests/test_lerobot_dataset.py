@@ -1,4 +1,4 @@
-"""A LeRobot dataset written from our simulation (sim2real/eval/lerobot_dataset.py): the shipped
+"""A LeRobot dataset written from our simulation (sim2real/eval/lerobot/dataset.py): the shipped
 SO-101 reach policy as the demonstrator, recorded at 25 Hz in LeRobot's units; written and read
 back with lerobot's own LeRobotDataset (skips, naming the extra, without it)."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim2real.eval.lerobot_dataset import record_demonstrations, write_dataset
+from sim2real.eval.lerobot.dataset import record_demonstrations, write_dataset
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """A LeRobot export run beside the servo loop (sim2real/deploy/policy/lerobot_policy.py,
-sim2real/eval/action_chunks.py): the policy's rate, one network call per chunk, LeRobot's SO-101
+sim2real/eval/lerobot/action_chunks.py): the policy's rate, one network call per chunk, LeRobot's SO-101
 units, and the smoother's bound on the jerk at chunk boundaries, on the MuJoCo SO-101."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 
 from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
 from sim2real.deploy.spec.foreign import lerobot as lr
-from sim2real.eval.action_chunks import boundary_jerk, jerk, run_chunks
+from sim2real.eval.lerobot.action_chunks import boundary_jerk, jerk, run_chunks
 from sim2real.robots import load_robot
 from tests.lerobot_folder import write_chunk_onnx
 
@@ -77,7 +77,7 @@ def test_deploy_run_refuses_a_lerobot_export_in_one_line(tmp_path, so101):
 
     path = write_chunk_onnx(tmp_path / "act.onnx")
     with pytest.raises(
-        PolicyLoadError, match=r"a LeRobot export .* `python -m sim2real.eval.action_chunks "
+        PolicyLoadError, match=r"a LeRobot export .* `python -m sim2real.eval.lerobot.action_chunks "
     ) as info:
         OnnxPolicy(path, so101)
     assert "\n" not in str(info.value)

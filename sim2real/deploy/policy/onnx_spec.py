@@ -95,7 +95,7 @@ def resolve_spec(
             raise PolicyLoadError(
                 f"{path}: a LeRobot export (metadata '{lerobot.METADATA_KEY}'): the runtime does "
                 "not run action-chunk policies yet; run it on the plant with `python -m "
-                f"sim2real.eval.action_chunks {path}`"
+                f"sim2real.eval.lerobot.action_chunks {path}`"
             )
         raise PolicyLoadError(
             f"{path}: no '{METADATA_SPEC}' metadata (not written by policy-export) and no "

@@ -8,7 +8,7 @@ Not the whole runtime: no state machine (ramp-in, safe stops), no supervision; t
 stand-ins (``frames``: by default a new uniform-noise image per camera every policy tick) until
 the plant renders RGB.
 
-``python -m sim2real.eval.action_chunks POLICY.onnx [--seconds S] [--seed N]`` prints the figures
+``python -m sim2real.eval.lerobot.action_chunks POLICY.onnx [--seconds S] [--seed N]`` prints the figures
 with and without the smoother.
 """
 
@@ -226,7 +226,7 @@ def boundary_jerk(run: ChunkRun, what: str = "position", skip_first: int = 1) ->
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m sim2real.eval.action_chunks", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m sim2real.eval.lerobot.action_chunks", description=__doc__)
     p.add_argument("policy", help="the ONNX file policy-export wrote from a LeRobot folder")
     p.add_argument("--robot", default="so101")
     p.add_argument("--seconds", type=float, default=10.0)

@@ -10,7 +10,7 @@ Features (LeRobot's units for the robot, :data:`~sim2real.deploy.policy.lerobot_
 was told to reach). One episode per goal, its frames from the tick the goal was issued until the
 next goal. No camera yet: the plant renders no RGB here (a camera feature joins when it does).
 
-``python -m sim2real.eval.lerobot_dataset POLICY.onnx ROOT [--seconds S] [--fps F]``.
+``python -m sim2real.eval.lerobot.dataset POLICY.onnx ROOT [--seconds S] [--fps F]``.
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ def write_dataset(episodes: list[Episode], root, fps: float, robot_name: str = "
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m sim2real.eval.lerobot_dataset", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m sim2real.eval.lerobot.dataset", description=__doc__)
     p.add_argument("policy", help="the demonstrator's ONNX file (ours, with its PolicySpec)")
     p.add_argument("root", type=Path, help="the dataset folder to create")
     p.add_argument("--robot", default="so101")

@@ -231,6 +231,23 @@ class TrackingTask:
         if idle.any():
             self.waited[idle] = 0.0
             self._align(runtime, idle)
+        if self.start_after > 0.0:
+            self._pin(runtime, running & np.isnan(clock.time) & ~self.handed_over)
+
+    def _pin(self, runtime, pinned: np.ndarray) -> None:
+        """The clip pinned at its first frame (``start_after``, RUNNING, not started) stands
+        still: the next tick reads the first frame with zero joint velocity, except the tick the
+        clip starts on, which reads the frame's own velocity as a started clip's first tick does.
+        A clip's first rows may jump (rl_sar's gangnam_style: 26 rad/s from its row 0 to row 1);
+        read for one tick that is rl_sar's start, held for ``start_after`` s it threw the G1 over
+        (a fall 0.2-1.5 s into the wait)."""
+        if not pinned.any():
+            return
+        buffer = self._buffer(runtime)
+        self.motion.write(buffer, pinned)
+        held = pinned & (self.waited < self.start_after - 0.5 * self.dt)
+        n = self.robot.n_joints
+        buffer[held, n : 2 * n] = 0.0
 
     def _judge(self, runtime, envs: np.ndarray) -> None:
         """Add this tick's errors of the envs of ``envs`` against the reference it read."""

@@ -7,8 +7,9 @@ loop, which has no guard: rl_sar's G1 dances hold their ankle rolls there. A soa
 ``no_hard_violation`` on every such tick would blame our runtime for the policy's habit.
 :func:`own_loop_reference` plays the clip ``plays`` times in the policy's own loop (rl_sar's
 whole_body_tracking loop, the one replica of it, :func:`own_tracking_loop`) on the soak's robot
-under the soak's pushes (its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``; no
-faults, no sensor noise: the loop reads the true state), each play to the clip's end or its
+under the soak's pushes (its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``;
+without pushes the loop is deterministic and plays once; no faults, no randomization, no sensor
+noise: the loop reads the true state of the nominal robot), each play to the clip's end or its
 first fall, and counts per joint the ticks past a hard limit (the state the policy read each
 tick) and, replaying a fresh :class:`~sim2real.deploy.safety.guard.SafetyGuard` (position mode)
 on each tick's true state and the target the policy gave (not applied: the own loop runs on),
@@ -111,6 +112,8 @@ def own_loop_reference(template, plays: int = OWN_LOOP_PLAYS) -> dict:
     robot = drive_robot(robot, template.load_policy(robot).spec)[0]
     pushes = WORLD_OF_KIND.get(robot_kind(robot).name).domain_pushes(template.ranges)
     replay = GuardReplay(robot)
+    if pushes is None:  # the loop is deterministic: every play would be the first
+        plays = 1
     falls, clip_s = 0, 0.0
     for k in range(plays):
         run = loop(robot, folder, template.seed + k, None, pushes, watch=replay)

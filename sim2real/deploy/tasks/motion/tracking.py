@@ -9,8 +9,8 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
 - before the robot is RUNNING (RAMP_IN to the home pose), the clip's first frame, yaw-aligned to
   the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
 - on the first RUNNING tick the clip starts (that tick read its time 0), or ``start_after`` s of
-  RUNNING later (the policy reads the first frame meanwhile, as holosoma_inference pins the clip
-  at its first step until the operator starts it), aligned again to the robot then (a stand-up's
+  RUNNING later (the policy reads the first frame meanwhile, at rest: zero joint velocity, as
+  holosoma_inference pins the clip at its first step until the operator starts it), aligned again to the robot then (a stand-up's
   RAMP_IN ends on its first tick); each RUNNING tick moves it one control period on; at its end
   the clock's playback (``stand``: a transition to home, then home; ``once``: the last frame);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
@@ -235,12 +235,9 @@ class TrackingTask:
             self._pin(runtime, running & np.isnan(clock.time) & ~self.handed_over)
 
     def _pin(self, runtime, pinned: np.ndarray) -> None:
-        """The clip pinned at its first frame (``start_after``, RUNNING, not started) stands
-        still: the next tick reads the first frame with zero joint velocity, except the tick the
-        clip starts on, which reads the frame's own velocity as a started clip's first tick does.
-        A clip's first rows may jump (rl_sar's gangnam_style: 26 rad/s from its row 0 to row 1);
-        read for one tick that is rl_sar's start, held for ``start_after`` s it threw the G1 over
-        (a fall 0.2-1.5 s into the wait)."""
+        """A clip pinned at its first frame (``start_after``) stands still: zero joint velocity,
+        but on the tick it starts (the frame's own, as rl_sar's first tick). gangnam_style's
+        rows 0-1 jump 26 rad/s: held for the wait, that threw the G1 over within 1.5 s."""
         if not pinned.any():
             return
         buffer = self._buffer(runtime)

@@ -10,9 +10,10 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
   the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
 - on the first RUNNING tick the clip starts (that tick read its time 0), or ``start_after`` s of
   RUNNING later (the policy reads the first frame meanwhile, at rest: zero joint velocity, as
-  holosoma_inference pins the clip at its first step until the operator starts it), aligned again to the robot then (a stand-up's
-  RAMP_IN ends on its first tick); each RUNNING tick moves it one control period on; at its end
-  the clock's playback (``stand``: a transition to home, then home; ``once``: the last frame);
+  holosoma_inference pins the clip at its first step until the operator starts it), aligned
+  again to the robot then (a stand-up's RAMP_IN ends on its first tick); each RUNNING tick
+  moves it one control period on; at its end the clock's playback (``stand``: a transition to
+  home, then home; ``once``: the last frame);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
 
 Each play is logged (:attr:`TrackingTask.play_log`; checkpointed with the figures, the part

@@ -184,3 +184,15 @@ def test_the_replayed_guard_counts_a_joint_past_its_limit_and_its_change():
     assert replay.past_ticks == 1 and replay.joint_ticks[j] == 1 and replay.joint_ticks.sum() == 1
     assert sum(replay.checks.values()) >= 1
     np.testing.assert_array_equal(target, before)
+
+
+def test_soak_test_refuses_a_negative_own_loop_play_count_in_one_line(go2_onnx, tmp_path, capsys):
+    """--own-loop-plays -1: exit 3, one line naming the flag, nothing written."""
+    from sim2real.eval.cli import main as soak_main
+
+    out = tmp_path / "soak"
+    argv = ["--robot", "go2", "--policy", str(go2_onnx), "--hours", "0.01", "--out", str(out)]
+    assert soak_main([*argv, "--own-loop-plays", "-1"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["soak-test: error: --own-loop-plays: expected a number >= 0, got -1"]
+    assert not out.exists()

@@ -55,11 +55,14 @@ SETTLE = 1.0
 RAMP_TIMEOUT = 10.0
 
 
-def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
+def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=None) -> Run:
     """One play of rl_sar ``folder``'s clip in rl_sar's loop (module docstring) on ``robot`` (its
     joints named as base.yaml's ``joint_names``), under ``pushes`` (a
     :class:`~sim2real.eval.world.pushes.PushRanges`; None: none), at most ``seconds`` s of clip
-    (None: all of it).
+    (None: all of it). ``watch(d, target)`` (optional) sees each clip tick's true state (the
+    ``mujoco.MjData`` the policy read) and the PD target (robot order, rad) the policy gave from
+    it, before the physics steps (the soak's own-loop reference,
+    :mod:`sim2real.eval.soak.own_loop_limits`).
 
     Raises:
         ValueError: a joint of base.yaml the robot lacks, or a control period not rl_sar's
@@ -110,6 +113,8 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes) -> Run:
             out = net(torch.from_numpy(obs)[None]).numpy()[0]
         actions = np.clip(out, lo, hi).astype(np.float32)
         target[ours] = actions * scale + default
+        if watch is not None:
+            watch(d, target)
         step()
         run.walked = walk.ticks = k + 1
         run.past_limit += past_hard_limit(robot, d.qpos[qo:])

@@ -24,7 +24,7 @@ from sim2real.deploy.spec.motion_blocks import (
 from sim2real.deploy.tasks.motion.clip import ClipError, MotionClip
 from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.csv_clip import read_csv_clip
-from tests.motion_files import G1_FLAGS, dance_folder, g1_xml
+from tests.motion_files import CLIP, G1_FLAGS, dance_folder, g1_xml
 from tests.rl_sar_files import write_tracking_folder
 
 WAIST = ("waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint")
@@ -340,6 +340,27 @@ def test_a_few_seconds_of_the_dance_play_without_a_fall(g1_dance, tmp_path):
     assert 0.05 < t["completed"] < 0.15
     assert t["joint_rms_rad_all"] < 0.15 and t["anchor_error_deg_mean"] < 10.0
     assert 0.0 < t["mpjpe_mm"] < 60.0 and t["bodies"] == 29
+
+
+@ON_G1_DANCE_WORKER
+def test_a_clip_pinned_at_its_first_frame_stands_still_until_it_starts(g1_dance, stacks, tmp_path):
+    """--motion-start-after pins the clip at its first frame: the policy reads that frame with
+    zero joint velocity while it waits. dance_102's clip with gangnam_style's first-row jump
+    (26 rad/s from row 0 to row 1; rl_sar reads it for one tick) pinned for 2 s: no fall (read
+    for the whole wait, the G1 fell within the 2 s, 86 hard-limit ticks)."""
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+
+    robot, policy = g1_dance
+    g = "policy/g1/whole_body_tracking/gangnam_style/G1_gangnam_style_V01.bvh_60hz.csv"
+    rows = np.loadtxt(Path(policy).parent / CLIP, delimiter=",")
+    jump = np.loadtxt(stacks.read("rl_sar", g).decode().splitlines()[:2], delimiter=",")
+    rows[0, 7:] = rows[1, 7:] - (jump[1, 7:] - jump[0, 7:])
+    clip = _csv(tmp_path / "jump.csv", rows)
+    report = tmp_path / "r.json"
+    argv = ["--backend", "sim", "--robot", str(robot), "--policy", str(policy), "--motion"]
+    argv += [str(clip), "--motion-start-after", "2", "--duration", "2.5", "--report", str(report)]
+    assert deploy_run_main(argv) == 0
+    assert json.loads(report.read_text())["locomotion"]["falls"] == 0
 
 
 @ON_G1_DANCE_WORKER

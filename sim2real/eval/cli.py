@@ -273,6 +273,30 @@ def _campaign(args, robot, template, found: dict, results: list[dict], wall: flo
     }
 
 
+def _own_loop(args, template, results: list[dict]) -> dict | None:
+    """An exhibition's own-loop reference
+    (:func:`sim2real.eval.soak.own_loop_limits.own_loop_reference`), its line printed; None for
+    a campaign no clip commands."""
+    if not any(r.get("exhibition") for r in results):
+        return None
+    from sim2real.eval.soak.own_loop_limits import own_loop_reference
+
+    wall = time.perf_counter()
+    own = own_loop_reference(template, args.own_loop_plays)
+    if own["compared"]:
+        joints = ", ".join(f"{j} {n}" for j, n in own["hard_limit_joints"].items())
+        print(
+            f"soak-test: own loop: {own['plays']} play(s) of the clip in rl_sar's loop "
+            f"({'pushes: ' + own['pushes'] if own['pushes'] else 'no pushes'}), "
+            f"{own['clip_s']:.0f} s, {own['falls']} falls; hard-limit ticks "
+            f"{own['hard_limit_ticks']} ({joints or 'none'}); the replayed guard would change "
+            f"{own['guard_ticks']} of {own['ticks']} ticks ({time.perf_counter() - wall:.0f} s wall)"
+        )
+    else:
+        print(f"soak-test: own loop: not compared: {own['why']}")
+    return own
+
+
 def _sweep(args, template, report: dict) -> None:
     """The robustness sweep (``--sweep``) into ``report["robustness"]``, its margins printed."""
     from sim2real.eval.soak.executors import default_workers
@@ -320,6 +344,7 @@ def run(args) -> int:
         thresholds,
         baseline,
         str(args.baseline) if args.baseline else None,
+        own_loop=_own_loop(args, template, results),
     )
     if args.sweep:
         _sweep(args, template, report)

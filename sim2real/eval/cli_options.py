@@ -75,6 +75,14 @@ def _add_campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rest-s", type=float, default=10.0, help="s standing between an exhibition's clips"
     )
+    p.add_argument(
+        "--own-loop-plays",
+        type=int,
+        default=3,
+        metavar="N",
+        help="plays of an exhibition's clip in the policy's own loop, whose hard-limit ticks and "
+        "guard interventions the verdict judges the session's against (0: not compared)",
+    )
 
 
 def _add_session_options(p: argparse.ArgumentParser) -> None:
@@ -229,6 +237,7 @@ def check_args(args) -> None:
     number("--window-minutes", 0, True)
     number("--checkpoint-minutes", 0, False)
     number("--operator-reset", 0, False)
+    number("--own-loop-plays", 0, False)
     for name in (
         "--tolerance-violations",
         "--violation-slack",

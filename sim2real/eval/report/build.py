@@ -88,6 +88,19 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     return {k: {"passed": bool(p), "message": m} for k, (p, m) in checks.items()}
 
 
+def own_loop_checks(result: dict, own: dict, thresholds: Thresholds) -> dict:
+    """Judge ``result``'s ``no_hard_violation`` and ``interventions`` (its ``checks``, replaced
+    in place) against the own loop ``own`` by :mod:`sim2real.eval.soak.own_loop_limits`'s rule;
+    returns the figures of both."""
+    from sim2real.eval.soak.own_loop_limits import judge_hard_limits, judge_interventions
+
+    hard = judge_hard_limits(result, own)
+    iv = judge_interventions(result, own, thresholds.max_intervention_rate)
+    for name, (passed, message, _) in (("no_hard_violation", hard), ("interventions", iv)):
+        result["checks"][name] = {"passed": bool(passed), "message": message}
+    return {"hard_limits": hard[2], "interventions": iv[2]}
+
+
 def on_spot_check(result: dict) -> tuple[bool, str]:
     """``on_spot``: an exhibition's base stays where its clips take it: no clip ends, and no
     rest goes, past the bounds of :mod:`sim2real.deploy.tasks.motion.travel` (0.5 m); a session
@@ -262,6 +275,7 @@ def build_report(
     thresholds: Thresholds | None = None,
     baseline: dict | None = None,
     baseline_path: str | None = None,
+    own_loop: dict | None = None,
 ) -> dict:
     """The report.json document (``schema_version`` ``SCHEMA_VERSION`` = 2)::
 
@@ -373,6 +387,13 @@ def build_report(
         thresholds: Pass/fail thresholds (default :class:`Thresholds`).
         baseline: An earlier report (:func:`load_report`) to compare with, or None.
         baseline_path: Where the baseline came from (recorded in the report).
+        own_loop: An exhibition's own-loop reference
+            (:func:`sim2real.eval.soak.own_loop_limits.own_loop_reference`), recorded as the
+            report's ``own_loop``; where compared, each clip session's ``no_hard_violation`` and
+            ``interventions`` are judged against it and the session gets ``own_loop_verdict``
+            {hard_limits, interventions} (the figures of
+            :func:`~sim2real.eval.soak.own_loop_limits.judge_hard_limits` and
+            :func:`~sim2real.eval.soak.own_loop_limits.judge_interventions`).
 
     Raises:
         ReportError: the baseline is not of this schema, misses a field, or is of another robot.
@@ -382,6 +403,8 @@ def build_report(
     for r in results:
         r = dict(r)
         r["checks"] = session_checks(r, thresholds)
+        if own_loop and own_loop.get("compared") and r.get("exhibition"):
+            r["own_loop_verdict"] = own_loop_checks(r, own_loop, thresholds)
         sessions.append(r)
     checks = {
         name: {
@@ -400,6 +423,7 @@ def build_report(
         "totals": totals(results),
         "checks": checks,
         "baseline": None,
+        "own_loop": own_loop,
     }
     if baseline is not None:
         report["baseline"] = compare_with_baseline(report, baseline, thresholds, baseline_path)

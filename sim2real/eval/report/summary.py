@@ -338,6 +338,19 @@ def exhibition_lines(s: dict) -> list[str]:
             f"{rests.get('hard_limit_ticks', 0)}"
             + (f"; LEFT ITS SPOT in plays {cr['left_spot'][:10]}" if cr["left_spot"] else "")
         )
+    v = s.get("own_loop_verdict")
+    if v:
+        hard, iv = v["hard_limits"], v["interventions"]
+        joints = ", ".join(
+            f"{j} {f['ours']}/{f['own']}" + (f" ({f['stack']} the stack's)" if f["stack"] else "")
+            for j, f in hard["joints"].items()
+        )
+        lines.append(
+            f"  own loop     hard-limit ticks ours/own loop's per joint over {hard['clip_s']:.0f} / "
+            f"{hard['own_clip_s']:.0f} s of clip: {joints or 'none'}; the stack's "
+            f"{hard['stack_ticks']}; interventions {100 * iv['ours']:.3f} % of ticks, the guard "
+            f"replayed on the own loop {100 * iv['own']:.3f} %"
+        )
     c = x["reference_contacts"]
     if c["frames_touching"]:
         lines.append(

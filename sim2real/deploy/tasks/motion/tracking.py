@@ -9,10 +9,11 @@ the next tick's reference into ``RobotState.motion`` (the blocks of
 - before the robot is RUNNING (RAMP_IN to the home pose), the clip's first frame, yaw-aligned to
   the robot as it stands now (rl_sar's ``Reset`` on entering its tracking state);
 - on the first RUNNING tick the clip starts (that tick read its time 0), or ``start_after`` s of
-  RUNNING later (the policy reads the first frame meanwhile, as holosoma_inference pins the clip
-  at its first step until the operator starts it), aligned again to the robot then (a stand-up's
-  RAMP_IN ends on its first tick); each RUNNING tick moves it one control period on; at its end
-  the clock's playback (``stand``: a transition to home, then home; ``once``: the last frame);
+  RUNNING later (the policy reads the first frame meanwhile, at rest: zero joint velocity, as
+  holosoma_inference pins the clip at its first step until the operator starts it), aligned
+  again to the robot then (a stand-up's RAMP_IN ends on its first tick); each RUNNING tick
+  moves it one control period on; at its end the clock's playback (``stand``: a transition to
+  home, then home; ``once``: the last frame);
 - a stop (a fall, the operator) ends the play: the next RUNNING starts the clip again.
 
 Each play is logged (:attr:`TrackingTask.play_log`; checkpointed with the figures, the part
@@ -231,6 +232,20 @@ class TrackingTask:
         if idle.any():
             self.waited[idle] = 0.0
             self._align(runtime, idle)
+        if self.start_after > 0.0:
+            self._pin(runtime, running & np.isnan(clock.time) & ~self.handed_over)
+
+    def _pin(self, runtime, pinned: np.ndarray) -> None:
+        """A clip pinned at its first frame (``start_after``) stands still: zero joint velocity,
+        but on the tick it starts (the frame's own, as rl_sar's first tick). gangnam_style's
+        rows 0-1 jump 26 rad/s: held for the wait, that threw the G1 over within 1.5 s."""
+        if not pinned.any():
+            return
+        buffer = self._buffer(runtime)
+        self.motion.write(buffer, pinned)
+        held = pinned & (self.waited < self.start_after - 0.5 * self.dt)
+        n = self.robot.n_joints
+        buffer[held, n : 2 * n] = 0.0
 
     def _judge(self, runtime, envs: np.ndarray) -> None:
         """Add this tick's errors of the envs of ``envs`` against the reference it read."""

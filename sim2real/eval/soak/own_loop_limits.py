@@ -1,0 +1,289 @@
+"""An exhibition soak's hard-limit ticks and guard interventions judged against the policy's own
+loop on the same clip (the guard-replay method, ``bench/guard_replay.py``), before the stack is
+blamed for them.
+
+A tracking policy may hold a joint at, or a few mrad past, its hard limit in its own stack's
+loop, which has no guard: rl_sar's G1 dances hold their ankle rolls there. A soak that failed
+``no_hard_violation`` on every such tick would blame our runtime for the policy's habit.
+:func:`own_loop_reference` plays the clip ``plays`` times in the policy's own loop (rl_sar's
+whole_body_tracking loop, the one replica of it, :func:`own_tracking_loop`) on the soak's robot
+under the soak's pushes (its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``;
+without pushes the loop is deterministic and plays once; no faults, no randomization, no sensor
+noise: the loop reads the true state of the nominal robot), each play to the clip's end or its
+first fall, and counts per joint the ticks past a hard limit (the state the policy read each
+tick) and, replaying a fresh :class:`~sim2real.deploy.safety.guard.SafetyGuard` (position mode)
+on each tick's true state and the target the policy gave (not applied: the own loop runs on),
+the ticks on which the guard would have changed it, per check.
+
+The rule (:func:`judge_hard_limits`, :func:`judge_interventions`): each joint's own-loop rate
+(ticks past its hard limit per second of clip played) times the seconds of clip the session
+played (its plays' judged ticks) is the joint's expected count; the session is allowed
+``(1 + MARGIN) x expected + SIGMAS x sqrt(expected)`` ticks on that joint (10 %, the margin issue
+97 asks of a dance against its own loop, plus three standard deviations of a Poisson count of
+that mean, so that a joint the own loop crosses a few times is not blamed on the draw). Only the
+ticks past the allowance are the stack's; ``no_hard_violation`` fails on any of them, on any
+tick lying down after a stop, or on a hard-limit safe stop. The session's count per joint is
+every tick up (the clips, their transitions to home and the rests): rl_sar's loop plays no rest,
+so a rest's ticks get no allowance. ``interventions`` passes at most ``max_intervention_rate``
+of the ticks as before, or at most ``(1 + MARGIN)`` times the share of the own loop's ticks the
+replayed guard would have changed (by the checks the session judges: those not the policy's
+style, ``by_design``); that share is the guard's on states our runtime did not produce, a guide
+and not a bound. A policy with no own loop here (not an rl_sar ``whole_body_tracking`` folder
+beside the ONNX, or ``--motion`` another clip) is judged as before, and the report says why.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from pathlib import Path
+
+import numpy as np
+
+#: The share the session may exceed the own loop's rate by, per joint and for interventions:
+#: issue 97's "within 10 % of the own loop".
+MARGIN = 0.10
+#: Standard deviations of a Poisson count added to each joint's allowance (our choice: three).
+SIGMAS = 3.0
+#: Plays of the clip in the own loop (``soak-test --own-loop-plays``); our choice: 3, about a
+#: minute of CPU per play of a 35-40 s G1 clip beside a soak of an hour.
+OWN_LOOP_PLAYS = 3
+
+
+def own_tracking_loop():
+    """The policy's own tracking loop: rl_sar's ``whole_body_tracking`` loop, the replica in
+    ``bench`` (``rl_sar_loop(robot, folder, seed, seconds, pushes, watch)``). The one place it is
+    imported: a move of the replica changes this line only.
+
+    Raises:
+        ImportError: ``bench`` is not importable (a checkout's root not on the path).
+    """
+    from bench.push_tracking import rl_sar_loop
+
+    return rl_sar_loop
+
+
+def rl_sar_folder(policy: str | Path) -> Path | None:
+    """The rl_sar ``whole_body_tracking`` folder the ONNX ``policy`` sits in (``config.yaml``,
+    its TorchScript ``policy.pt`` and ``base.yaml`` two levels up, as rl_sar lays
+    ``policy/<robot>/whole_body_tracking/<name>``), or None."""
+    folder = Path(policy).resolve().parent
+    if folder.parent.name != "whole_body_tracking":
+        return None
+    if not (folder / "config.yaml").is_file() or not (folder / "policy.pt").is_file():
+        return None
+    return folder if (folder.parent.parent / "base.yaml").is_file() else None
+
+
+def own_loop_reference(template, plays: int = OWN_LOOP_PLAYS) -> dict:
+    """The own loop's figures on the clip of ``template`` (a
+    :class:`~sim2real.eval.soak.session.SessionConfig`) (module docstring).
+
+    Returns:
+        ``{"compared": False, "why": str}`` where there is no own loop to compare with; else
+        ``compared`` True, ``loop`` (what ran), ``folder``, ``plays``, ``falls``, ``clip_s``
+        (s of clip played, summed), ``ticks``, ``hard_limit_ticks`` (ticks with a joint past a
+        hard limit), ``hard_limit_joints`` {joint: ticks}, most first, ``guard_checks`` {check:
+        ticks the replayed guard's check changed the target}, ``guard_patterns`` [[checks,
+        ticks]] (the set of checks that acted on a tick, for any ``by_design``), ``guard_ticks``
+        (ticks with any change), ``pushes`` (the domain's, described, or None).
+    """
+    if plays < 1:
+        return {"compared": False, "why": "--own-loop-plays 0"}
+    if template.motion is not None:
+        return {"compared": False, "why": "--motion plays another clip than the policy's own loop"}
+    folder = rl_sar_folder(template.policy)
+    if folder is None:
+        return {
+            "compared": False,
+            "why": f"{template.policy}: no rl_sar whole_body_tracking folder beside it "
+            "(config.yaml, policy.pt, base.yaml two levels up): no own loop to compare with",
+        }
+    try:
+        loop = own_tracking_loop()
+    except ImportError as e:
+        return {"compared": False, "why": f"the own loop's replica is not importable ({e})"}
+    from sim2real.deploy.kinds import robot_kind
+    from sim2real.deploy.spec.drive import drive_robot
+    from sim2real.eval.world.world_faces import WORLD_OF_KIND
+    from sim2real.robots import load_robot
+
+    robot = load_robot(template.robot)
+    robot = drive_robot(robot, template.load_policy(robot).spec)[0]
+    pushes = WORLD_OF_KIND.get(robot_kind(robot).name).domain_pushes(template.ranges)
+    replay = GuardReplay(robot)
+    if pushes is None:  # the loop is deterministic: every play would be the first
+        plays = 1
+    falls, clip_s = 0, 0.0
+    for k in range(plays):
+        run = loop(robot, folder, template.seed + k, None, pushes, watch=replay)
+        falls += run.fell_at is not None
+        clip_s += run.walked
+    joints = replay.joint_ticks
+    order = np.argsort(-joints, kind="stable")
+    return {
+        "compared": True,
+        "loop": "rl_sar whole_body_tracking (the TorchScript policy.pt on the true state, "
+        "its rl_kp/rl_kd; no estimator, guard or noise)",
+        "folder": str(folder),
+        "plays": plays,
+        "falls": falls,
+        "clip_s": clip_s,
+        "ticks": replay.ticks,
+        "hard_limit_ticks": replay.past_ticks,
+        "hard_limit_joints": {robot.joint_names[j]: int(joints[j]) for j in order if joints[j] > 0},
+        "guard_checks": dict(replay.checks.most_common()),
+        "guard_patterns": [[list(p), n] for p, n in replay.patterns.most_common()],
+        "guard_ticks": sum(n for p, n in replay.patterns.items() if p),
+        "pushes": None if pushes is None else pushes.describe(),
+    }
+
+
+class GuardReplay:
+    """The own loop's watch (``watch(d, target)``): per tick, the joints past their hard limits
+    in the true state ``d`` (a ``mujoco.MjData`` of ``robot``'s plant) and the checks a
+    :class:`~sim2real.deploy.safety.guard.SafetyGuard` would have changed ``target`` (rad, robot
+    order) by, from that state (joints, the base's tilt, a foot in contact where MuJoCo has a
+    contact of its body with the floor: ``bench.guard_replay``'s reading)."""
+
+    def __init__(self, robot):
+        import mujoco
+
+        from sim2real.deploy.core.state import RobotState
+        from sim2real.deploy.safety.checks import CHECKS
+        from sim2real.deploy.safety.guard import SafetyGuard
+
+        self.robot, self.names = robot, CHECKS
+        self.guard = SafetyGuard(robot, 1, "position")
+        self.guard.reset(np.asarray(robot.home, dtype=float)[None].copy())
+        self.state = RobotState.legged(1, robot.n_joints, robot.n_feet)
+        self.m = robot.plant_model("torque")
+        self.feet = [self.m.body(f).id for f in robot.config.base.feet]
+        self.geom_body = self.m.geom_bodyid
+        self._mujoco = mujoco
+        self.lo, self.up = np.asarray(robot.position_lower), np.asarray(robot.position_upper)
+        self.out = np.empty((1, robot.n_joints))
+        self.ticks = self.past_ticks = 0
+        self.joint_ticks = np.zeros(robot.n_joints, dtype=np.int64)
+        self.checks: collections.Counter = collections.Counter()
+        self.patterns: collections.Counter = collections.Counter()
+
+    def __call__(self, d, target: np.ndarray) -> None:
+        from sim2real.deploy.core.attitude import projected_gravity
+
+        r = self.robot
+        q = d.qpos[r.qpos_offset :]
+        past = (q > self.up) | (q < self.lo)
+        self.ticks += 1
+        self.past_ticks += bool(past.any())
+        self.joint_ticks += past
+        contact = np.zeros(len(self.feet), dtype=bool)
+        for k in range(d.ncon):
+            bodies = (self.geom_body[d.contact[k].geom1], self.geom_body[d.contact[k].geom2])
+            if 0 in bodies:
+                for f, body in enumerate(self.feet):
+                    contact[f] |= body in bodies
+        s = self.state
+        s.q[0], s.dq[0] = q, d.qvel[r.qvel_offset :]
+        s.base.projected_gravity[0] = projected_gravity(d.qpos[3:7])
+        s.foot_contact[0] = contact
+        before = self.guard.count_matrix[:, 0].copy()
+        self.guard.filter(np.asarray(target, dtype=float)[None], s, out=self.out)
+        acted = tuple(
+            self.names[i] for i in np.flatnonzero(self.guard.count_matrix[:, 0] != before)
+        )
+        self.checks.update(acted)
+        self.patterns[acted] += 1
+
+
+def allowance(rate_per_s: float, clip_s: float) -> float:
+    """Ticks a joint may spend past its hard limit in ``clip_s`` s of clip when the own loop
+    spends ``rate_per_s`` ticks per s there (module docstring's rule)."""
+    expected = rate_per_s * clip_s
+    return (1.0 + MARGIN) * expected + SIGMAS * math.sqrt(expected)
+
+
+def session_clip_s(result: dict) -> float:
+    """s of clip a session played: its plays' judged ticks times the control period (the
+    session's simulated s over its ticks)."""
+    dt = result["simulated_s"] / result["ticks"] if result.get("ticks") else 0.0
+    return sum(int(c.get("ticks", 0)) for c in result["exhibition"]["clips"]) * dt
+
+
+def judge_hard_limits(result: dict, own: dict) -> tuple[bool, str, dict]:
+    """``no_hard_violation`` of an exhibition session against ``own``
+    (:func:`own_loop_reference`, compared) by the module docstring's rule.
+
+    Returns:
+        (passed, message, figures): figures ``clip_s``, ``own_clip_s``, ``joints`` {joint:
+        {ours, own, allowed, stack}} (every joint past a limit in either), ``stack_ticks`` (the
+        ticks past the allowances, summed), ``while_down``, ``hard_stops``.
+    """
+    clip_s = session_clip_s(result)
+    ours = result["violations"].get("hard_limit_joints") or {}
+    mine = own["hard_limit_joints"]
+    joints = {}
+    for j in list(ours) + [j for j in mine if j not in ours]:
+        rate = mine.get(j, 0) / own["clip_s"] if own["clip_s"] > 0 else 0.0
+        allowed = allowance(rate, clip_s)
+        n = int(ours.get(j, 0))
+        joints[j] = {
+            "ours": n,
+            "own": int(mine.get(j, 0)),
+            "allowed": round(allowed, 1),
+            "stack": max(0, math.ceil(n - allowed)),
+        }
+    down = result["violations"].get("while_down", {}).get("hard_limit", 0)
+    stops = result["runtime"]["by_cause"].get("hard_limit", 0)
+    stack = sum(v["stack"] for v in joints.values())
+    figures = {
+        "clip_s": clip_s,
+        "own_clip_s": own["clip_s"],
+        "joints": joints,
+        "stack_ticks": stack,
+        "while_down": int(down),
+        "hard_stops": int(stops),
+    }
+    per_joint = "; ".join(
+        f"{j} {v['ours']} (own {v['own']}, allowed {v['allowed']:g})" for j, v in joints.items()
+    )
+    message = (
+        f"hard-limit ticks per joint, ours over {clip_s:.0f} s of clip against the own loop's "
+        f"{own['clip_s']:.0f} s "
+        f"({own['plays']} plays, {own['falls']} falls): {per_joint or 'none'}; the stack's "
+        f"(past the allowance): {stack}"
+        + (f"; {down} more lying down after a stop" if down else "")
+        + f"; {stops} hard-limit safe stops"
+    )
+    return stack == 0 and down == 0 and stops == 0, message, figures
+
+
+def own_guard_share(own: dict, by_design) -> float:
+    """The share of the own loop's ticks the replayed guard would have changed by a check not
+    in ``by_design``."""
+    ticks = sum(
+        n for pattern, n in own["guard_patterns"] if any(c not in by_design for c in pattern)
+    )
+    return ticks / own["ticks"] if own["ticks"] else 0.0
+
+
+def judge_interventions(result: dict, own: dict, threshold: float) -> tuple[bool, str, dict]:
+    """``interventions`` of an exhibition session against ``own`` (module docstring's rule):
+    passed at most ``threshold`` of its ticks, or at most ``(1 + MARGIN)`` times the own loop's
+    replayed-guard share.
+
+    Returns:
+        (passed, message, figures ``{ours, own, allowed}``: shares of ticks).
+    """
+    iv = result["interventions"]
+    by_design = iv.get("by_design", [])
+    ours = iv.get("safety", iv["any"])["fraction"]
+    share = own_guard_share(own, by_design)
+    allowed = max(threshold, (1.0 + MARGIN) * share)
+    message = (
+        f"{100 * ours:.3f} % of ticks with an intervention; the guard replayed on the own "
+        f"loop's ticks would change {100 * share:.3f} % ({own['plays']} plays); allowed "
+        f"{100 * allowed:.3f} % (the threshold {100 * threshold:.3f} %, or the own loop's "
+        f"share + {100 * MARGIN:g} %)"
+    )
+    return ours <= allowed, message, {"ours": ours, "own": share, "allowed": allowed}

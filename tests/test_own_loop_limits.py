@@ -1,0 +1,198 @@
+"""An exhibition soak's hard-limit ticks and interventions judged against the policy's own loop on
+the same clip (:mod:`sim2real.eval.soak.own_loop_limits`): the stack is blamed only for ticks past
+what the own loop has, joint by joint, and a policy with no own loop is judged as before."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from sim2real.eval.report.schema import Thresholds
+from sim2real.eval.soak.own_loop_limits import (
+    MARGIN,
+    SIGMAS,
+    GuardReplay,
+    allowance,
+    judge_hard_limits,
+    judge_interventions,
+    own_loop_reference,
+    rl_sar_folder,
+)
+from sim2real.eval.soak.session import SessionConfig
+
+OWN = {
+    "compared": True,
+    "plays": 3,
+    "falls": 0,
+    "clip_s": 100.0,  # s of clip played in the own loop
+    "ticks": 5000,
+    "hard_limit_ticks": 120,
+    "hard_limit_joints": {"right_ankle_roll_joint": 100, "left_ankle_roll_joint": 20},
+    "guard_checks": {"pd_barrier": 50, "target_clamp": 400},
+    "guard_patterns": [[[], 4550], [["pd_barrier"], 50], [["target_clamp"], 400]],
+    "guard_ticks": 450,
+}
+
+
+def _session(joints: dict, down: int = 0, stops: int = 0, share: float = 0.001) -> dict:
+    """A session result with 1,000 s of clip played (50,000 judged ticks at 50 Hz)."""
+    return {
+        "simulated_s": 1200.0,
+        "ticks": 60000,
+        "exhibition": {"clips": [{"ticks": 25000}, {"ticks": 25000}], "clip_s": 35.0},
+        "violations": {
+            "total": {"hard_limit": sum(joints.values())},
+            "hard_limit_joints": joints,
+            "while_down": {"hard_limit": down},
+        },
+        "runtime": {"by_cause": {"hard_limit": stops} if stops else {}},
+        "interventions": {
+            "any": {"fraction": share},
+            "safety": {"fraction": share},
+            "by_design": ["target_clamp"],
+            "checks": {},
+        },
+    }
+
+
+def test_the_allowance_is_the_own_loops_rate_plus_ten_percent_and_three_sigma():
+    """1 tick/s over 100 s: 100 expected, 110 + 3 x 10 = 140 allowed; none expected: none."""
+    assert allowance(1.0, 100.0) == pytest.approx((1 + MARGIN) * 100 + SIGMAS * 10)
+    assert allowance(1.0, 100.0) == pytest.approx(140.0)
+    assert allowance(0.0, 1000.0) == 0.0
+
+
+def test_only_the_ticks_past_the_own_loops_are_the_stacks():
+    """The own loop's right ankle roll crosses 1 tick/s: 1,000 expected in 1,000 s of clip, and
+    1,194.9 allowed; 1,150 pass. Its left ankle roll 0.2/s: 200 expected, 262.4 allowed, 300
+    are 38 too many. A knee the own loop never crosses: every tick is the stack's."""
+    ok, message, fig = judge_hard_limits(
+        _session({"right_ankle_roll_joint": 1150, "left_ankle_roll_joint": 100}), OWN
+    )
+    assert ok, message
+    assert fig["joints"]["right_ankle_roll_joint"]["allowed"] == pytest.approx(
+        1.1 * 1000 + 3 * math.sqrt(1000), abs=0.1
+    )
+    assert fig["clip_s"] == pytest.approx(1000.0)
+    assert "the stack's (past the allowance): 0" in message
+    ok, message, fig = judge_hard_limits(
+        _session({"left_ankle_roll_joint": 300, "left_knee_joint": 2}), OWN
+    )
+    assert not ok
+    assert fig["joints"]["left_ankle_roll_joint"]["stack"] == 38
+    assert fig["joints"]["left_knee_joint"] == {"ours": 2, "own": 0, "allowed": 0.0, "stack": 2}
+    assert fig["stack_ticks"] == 40
+    assert "left_knee_joint 2 (own 0, allowed 0)" in message
+
+
+def test_ticks_lying_down_and_hard_limit_stops_still_fail():
+    """Within the allowance on every joint, a tick lying down after a stop or a hard-limit safe
+    stop still fails the check (the own loop is not asked about them)."""
+    assert not judge_hard_limits(_session({"right_ankle_roll_joint": 10}, down=1), OWN)[0]
+    assert not judge_hard_limits(_session({"right_ankle_roll_joint": 10}, stops=1), OWN)[0]
+    assert judge_hard_limits(_session({"right_ankle_roll_joint": 10}), OWN)[0]
+
+
+def test_interventions_against_the_guard_replayed_on_the_own_loop():
+    """The own loop's replayed guard changes 1 % of its ticks by a check the session judges
+    (pd_barrier; target_clamp is the policy's style): the session may have 1.1 %."""
+    ok, message, fig = judge_interventions(_session({}, share=0.0105), OWN, 0.005)
+    assert ok, message
+    assert fig["own"] == pytest.approx(0.01)
+    assert fig["allowed"] == pytest.approx(0.011)
+    assert not judge_interventions(_session({}, share=0.0115), OWN, 0.005)[0]
+    assert judge_interventions(_session({}, share=0.0115), OWN, 0.02)[0]  # the threshold
+
+
+def test_the_report_judges_a_clip_session_against_the_own_loop():
+    """A session's no_hard_violation fails on 900 right ankle roll ticks alone, and passes
+    judged against an own loop that has them too (build_report's ``own_loop_checks``)."""
+    result = _session({"right_ankle_roll_joint": 900})
+    result.update(
+        id="seed0000",
+        seed=0,
+        status="complete",
+        diverged=False,
+        thermal={"joints": ["j"], "peak_c": {"j": 40.0}, "max_winding_c": {"j": 120.0}},
+        goals={"success_rate": 1.0, "min_window_success_rate": 1.0, "reached": 1, "issued": 1,
+               "windows": [], "window_s": 600.0},
+    )  # fmt: skip
+    result["runtime"].update(latched_faults=0, latches=[])
+    from sim2real.eval.report import build
+
+    checks = build.session_checks(dict(result), Thresholds())
+    assert not checks["no_hard_violation"]["passed"]
+    r = dict(result)
+    r["checks"] = checks
+    figures = build.own_loop_checks(r, OWN, Thresholds())
+    assert r["checks"]["no_hard_violation"]["passed"], r["checks"]["no_hard_violation"]
+    assert figures["hard_limits"]["joints"]["right_ankle_roll_joint"]["own"] == 100
+
+
+def test_a_policy_with_no_own_loop_is_not_compared(tmp_path):
+    """An ONNX outside an rl_sar whole_body_tracking folder, another clip (--motion) or 0 plays:
+    not compared, and the reason says which."""
+    onnx = tmp_path / "dance.onnx"
+    onnx.write_bytes(b"")
+    t = SessionConfig(robot="go2", policy=str(onnx), seed=0, hours=0.1)
+    own = own_loop_reference(t, 3)
+    assert not own["compared"] and "no rl_sar whole_body_tracking folder" in own["why"]
+    assert "another clip" in own_loop_reference(SessionConfig(
+        robot="go2", policy=str(onnx), seed=0, hours=0.1, motion="x.csv"), 3)["why"]  # fmt: skip
+    assert own_loop_reference(t, 0)["why"] == "--own-loop-plays 0"
+
+
+def test_an_rl_sar_tracking_folder_is_found_beside_its_onnx(tmp_path):
+    """policy/g1/whole_body_tracking/<name>/policy.onnx with config.yaml, policy.pt and
+    base.yaml two levels up, as rl_sar lays it; a folder missing one is not."""
+    folder = tmp_path / "policy" / "g1" / "whole_body_tracking" / "dance"
+    folder.mkdir(parents=True)
+    for name in ("config.yaml", "policy.pt", "policy.onnx"):
+        (folder / name).write_text("")
+    assert rl_sar_folder(folder / "policy.onnx") is None  # no base.yaml
+    (tmp_path / "policy" / "g1" / "base.yaml").write_text("")
+    assert rl_sar_folder(folder / "policy.onnx") == folder.resolve()
+    (folder / "policy.pt").unlink()
+    assert rl_sar_folder(folder / "policy.onnx") is None
+
+
+def test_the_replayed_guard_counts_a_joint_past_its_limit_and_its_change():
+    """On the Go2's plant, a calf 0.05 rad past its lower limit and the policy asking 0.1 rad
+    farther: the tick counts for that joint alone, and the guard would have changed the target
+    (the target is not applied: the replay only watches)."""
+    from sim2real.robots import load_robot
+
+    robot = load_robot("go2")
+    replay = GuardReplay(robot)
+    m = robot.plant_model("torque")
+    d = mujoco.MjData(m)
+    d.qpos[robot.qpos_offset :] = robot.home
+    d.qpos[2] = 0.3
+    mujoco.mj_forward(m, d)
+    target = np.array(robot.home, dtype=float)
+    replay(d, target)  # at home: nothing
+    assert replay.ticks == 1 and replay.past_ticks == 0 and not replay.checks
+    j = robot.joint_names.index("FR_calf_joint")
+    d.qpos[robot.qpos_offset + j] = robot.position_lower[j] - 0.05
+    mujoco.mj_forward(m, d)
+    target[j] = robot.position_lower[j] - 0.15
+    before = target.copy()
+    replay(d, target)
+    assert replay.past_ticks == 1 and replay.joint_ticks[j] == 1 and replay.joint_ticks.sum() == 1
+    assert sum(replay.checks.values()) >= 1
+    np.testing.assert_array_equal(target, before)
+
+
+def test_soak_test_refuses_a_negative_own_loop_play_count_in_one_line(go2_onnx, tmp_path, capsys):
+    """--own-loop-plays -1: exit 3, one line naming the flag, nothing written."""
+    from sim2real.eval.cli import main as soak_main
+
+    out = tmp_path / "soak"
+    argv = ["--robot", "go2", "--policy", str(go2_onnx), "--hours", "0.01", "--out", str(out)]
+    assert soak_main([*argv, "--own-loop-plays", "-1"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["soak-test: error: --own-loop-plays: expected a number >= 0, got -1"]
+    assert not out.exists()

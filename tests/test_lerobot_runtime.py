@@ -77,7 +77,8 @@ def test_deploy_run_refuses_a_lerobot_export_in_one_line(tmp_path, so101):
 
     path = write_chunk_onnx(tmp_path / "act.onnx")
     with pytest.raises(
-        PolicyLoadError, match=r"a LeRobot export .* `python -m sim2real.eval.lerobot.action_chunks "
+        PolicyLoadError,
+        match=r"a LeRobot export .* `python -m sim2real.eval.lerobot.action_chunks ",
     ) as info:
         OnnxPolicy(path, so101)
     assert "\n" not in str(info.value)

@@ -8,7 +8,7 @@ smoother, no stop): the loops of unitree_rl_gym's ``deploy_mujoco.py`` and unitr
 sim2sim. The plant is anything with ``true_position``, ``true_velocity``, ``true_base_state``
 (a floating base), ``write`` and ``advance``: :class:`~sim2real.deploy.backends.sim.plant.SimBackend`
 (its position-mode drives), or a bare MuJoCo model whose torque actuators take the PD law at
-every physics step (the push benchmark's, ``bench.push_loops.BarePlant``).
+every physics step (the push benchmark's, :class:`sim2real.stacks.loops.bare.BarePlant`).
 
 The loop keeps its own ``ticks``, ``time`` (s) and ``mode`` (always RUNNING): what the world's
 schedules read of a runtime (:class:`~sim2real.eval.world.pushes.DomainPushes`, a

@@ -226,7 +226,9 @@ def boundary_jerk(run: ChunkRun, what: str = "position", skip_first: int = 1) ->
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m sim2real.eval.lerobot.action_chunks", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m sim2real.eval.lerobot.action_chunks", description=__doc__
+    )
     p.add_argument("policy", help="the ONNX file policy-export wrote from a LeRobot folder")
     p.add_argument("--robot", default="so101")
     p.add_argument("--seconds", type=float, default=10.0)

@@ -1,35 +1,29 @@
 """An exhibition soak's hard-limit ticks and guard interventions judged against the policy's own
-loop on the same clip (the guard-replay method, ``bench/guard_replay.py``), before the stack is
-blamed for them.
+loop on the same clip (the guard-replay method, ``bench/guard_replay.py``) before the stack is
+blamed for them: rl_sar's G1 dances hold their ankle rolls at, or a few mrad past, their hard
+limits in their own loop, which has no guard.
 
-A tracking policy may hold a joint at, or a few mrad past, its hard limit in its own stack's
-loop, which has no guard: rl_sar's G1 dances hold their ankle rolls there. A soak that failed
-``no_hard_violation`` on every such tick would blame our runtime for the policy's habit.
 :func:`own_loop_reference` plays the clip ``plays`` times in the policy's own loop (rl_sar's
-whole_body_tracking loop, the one replica of it, :func:`own_tracking_loop`) on the soak's robot
-under the soak's pushes (its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``;
-without pushes the loop is deterministic and plays once; no faults, no randomization, no sensor
-noise: the loop reads the true state of the nominal robot), each play to the clip's end or its
-first fall, and counts per joint the ticks past a hard limit (the state the policy read each
-tick) and, replaying a fresh :class:`~sim2real.deploy.safety.guard.SafetyGuard` (position mode)
-on each tick's true state and the target the policy gave (not applied: the own loop runs on),
-the ticks on which the guard would have changed it, per check.
+whole_body_tracking loop, :func:`own_tracking_loop`) on the soak's robot under the soak's pushes
+(its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``; without pushes the loop is
+deterministic and plays once; no faults, randomization or sensor noise: the true state of the
+nominal robot), each play to the clip's end or its first fall, and counts per joint the ticks past
+a hard limit and, replaying a fresh :class:`~sim2real.deploy.safety.guard.SafetyGuard` (position
+mode) on each tick's true state and the policy's target (not applied), the ticks on which the
+guard would have changed it, per check.
 
-The rule (:func:`judge_hard_limits`, :func:`judge_interventions`): each joint's own-loop rate
-(ticks past its hard limit per second of clip played) times the seconds of clip the session
-played (its plays' judged ticks) is the joint's expected count; the session is allowed
-``(1 + MARGIN) x expected + SIGMAS x sqrt(expected)`` ticks on that joint (10 %, the margin issue
-97 asks of a dance against its own loop, plus three standard deviations of a Poisson count of
-that mean, so that a joint the own loop crosses a few times is not blamed on the draw). Only the
-ticks past the allowance are the stack's; ``no_hard_violation`` fails on any of them, on any
-tick lying down after a stop, or on a hard-limit safe stop. The session's count per joint is
-every tick up (the clips, their transitions to home and the rests): rl_sar's loop plays no rest,
-so a rest's ticks get no allowance. ``interventions`` passes at most ``max_intervention_rate``
-of the ticks as before, or at most ``(1 + MARGIN)`` times the share of the own loop's ticks the
-replayed guard would have changed (by the checks the session judges: those not the policy's
-style, ``by_design``); that share is the guard's on states our runtime did not produce, a guide
-and not a bound. A policy with no own loop here (not an rl_sar ``whole_body_tracking`` folder
-beside the ONNX, or ``--motion`` another clip) is judged as before, and the report says why.
+The rule (:func:`judge_hard_limits`, :func:`judge_interventions`): a joint's own-loop rate (ticks
+past its hard limit per second of clip) times the seconds of clip the session played is its
+expected count; the session is allowed ``(1 + MARGIN) x expected + SIGMAS x sqrt(expected)``
+ticks on that joint (three standard deviations of a Poisson count, so that a joint the own loop
+crosses a few times is not blamed on the draw). Only the ticks past the allowance are the stack's;
+``no_hard_violation`` fails on any of them, on any tick lying down after a stop, or on a
+hard-limit safe stop. Every tick up counts (clips, transitions, rests: rl_sar's loop plays no rest,
+so a rest gets no allowance). ``interventions`` passes at most ``max_intervention_rate`` of the
+ticks, or at most ``(1 + MARGIN)`` times the share of the own loop's ticks the replayed guard
+would have changed (the checks the session judges; a guide, not a bound: states our runtime did
+not produce). Without an own loop here (no rl_sar ``whole_body_tracking`` folder beside the ONNX,
+or ``--motion`` another clip) a session is judged as before, and the report says why.
 """
 
 from __future__ import annotations
@@ -41,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 #: The share the session may exceed the own loop's rate by, per joint and for interventions:
-#: issue 97's "within 10 % of the own loop".
+#: a dance "within 10 % of its own loop" (our margin for every figure judged against it).
 MARGIN = 0.10
 #: Standard deviations of a Poisson count added to each joint's allowance (our choice: three).
 SIGMAS = 3.0
@@ -51,16 +45,14 @@ OWN_LOOP_PLAYS = 3
 
 
 def own_tracking_loop():
-    """The policy's own tracking loop: rl_sar's ``whole_body_tracking`` loop, the replica in
-    ``bench`` (``rl_sar_loop(robot, folder, seed, seconds, pushes, watch)``). The one place it is
-    imported: a move of the replica changes this line only.
+    """The policy's own tracking loop: rl_sar's ``whole_body_tracking`` loop under the soak's
+    pushes (:func:`sim2real.stacks.loops.rl_sar_pushed.rl_sar_loop`, ``rl_sar_loop(robot,
+    folder, seed, seconds, pushes, watch)``). The stacks sit on the top floor: the soak resolves
+    it by name at run time (:func:`sim2real.deploy.core.registry.load_target`), as the stacks'
+    registry resolves a face."""
+    from sim2real.deploy.core.registry import load_target
 
-    Raises:
-        ImportError: ``bench`` is not importable (a checkout's root not on the path).
-    """
-    from bench.push_tracking import rl_sar_loop
-
-    return rl_sar_loop
+    return load_target("sim2real.stacks.loops.rl_sar_pushed:rl_sar_loop")
 
 
 def rl_sar_folder(policy: str | Path) -> Path | None:
@@ -144,7 +136,7 @@ class GuardReplay:
     in the true state ``d`` (a ``mujoco.MjData`` of ``robot``'s plant) and the checks a
     :class:`~sim2real.deploy.safety.guard.SafetyGuard` would have changed ``target`` (rad, robot
     order) by, from that state (joints, the base's tilt, a foot in contact where MuJoCo has a
-    contact of its body with the floor: ``bench.guard_replay``'s reading)."""
+    contact of its body with the floor: ``bench/guard_replay.py``'s reading)."""
 
     def __init__(self, robot):
         import mujoco

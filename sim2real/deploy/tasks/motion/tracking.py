@@ -21,14 +21,13 @@ Each play is logged (:attr:`TrackingTask.play_log`; checkpointed with the figure
 The reference's own self-contacts (:mod:`~sim2real.deploy.tasks.motion.self_contact`) are screened
 once; :meth:`TrackingTask.reference_contacts` tells the violation monitor which pairs it touches.
 
-Judged while the clip plays (not while its last frame holds), on the plant's truth in
-simulation (the estimate on hardware, the IMU's own attitude for the anchor where it sends
-one): joint-angle error (rad RMS) per body group (legs, waist,
-arms: by the joint's name), the anchor's orientation error (deg, the torso of the true base and
-joint angles against the aligned reference), the bodies' position error (MPJPE, mm,
-root-relative: both poses' forward kinematics with the base at the origin, Pinocchio; the bodies
-the joints move), the share of the clip completed; falls by the velocity tracker (a zero
-command).
+Judged while the clip plays (not while its last frame holds), on the plant's truth in simulation
+(the estimate on hardware, the IMU's own attitude for the anchor where it sends one): joint-angle
+error (rad RMS) per body group (legs, waist, arms: by the joint's name), the anchor's orientation
+error (deg, the torso of the true base and joint angles against the aligned reference), the bodies'
+position error (MPJPE, mm, root-relative: both poses' forward kinematics with the base at the
+origin, Pinocchio; the bodies the joints move), the share of the clip completed; falls by the
+velocity tracker (a zero command).
 """
 
 from __future__ import annotations

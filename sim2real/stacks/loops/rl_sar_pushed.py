@@ -1,0 +1,96 @@
+"""rl_sar's tracking loop under the soak's pushes (:func:`rl_sar_loop`): one play of an rl_sar
+folder's clip as rl_sar's own MuJoCo loop plays it (:mod:`sim2real.stacks.loops.rl_sar_tracking`,
+:mod:`sim2real.stacks.loops.rl_sar_motion`) on a bare plant (:mod:`sim2real.stacks.loops.bare`),
+pushed by the soak's schedule. The tracking push benchmark (``bench/push_tracking.py``) and the
+soak's own-loop reference of a dance (:mod:`sim2real.eval.soak.own_loop_limits`) run it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from sim2real.deploy.backends.sim.disturbances import SimDisturbances
+from sim2real.eval.world.pushes import DomainPushes
+from sim2real.stacks.loops.bare import Run, bare_plant, past_hard_limit, true_fall
+from sim2real.stacks.loops.rl_sar_motion import RlSarMotion, rl_sar_params
+from sim2real.stacks.loops.rl_sar_tracking import load_policy, observation
+from sim2real.stacks.loops.walk import Walk
+
+#: s the own loop holds the home pose before the clip (rl_sar's GetUp before its dance state; our
+#: choice of length: the robot at rest on its feet)
+SETTLE = 1.0
+
+
+def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=None) -> Run:
+    """One play of rl_sar ``folder``'s clip in rl_sar's loop (module docstring) on ``robot`` (its
+    joints named as base.yaml's ``joint_names``), under ``pushes`` (a
+    :class:`~sim2real.eval.world.pushes.PushRanges`; None: none), at most ``seconds`` s of clip
+    (None: all of it). ``watch(d, target)`` (optional) sees each clip tick's true state (the
+    ``mujoco.MjData`` the policy read) and the PD target (robot order, rad) the policy gave from
+    it, before the physics steps (the soak's own-loop reference,
+    :mod:`sim2real.eval.soak.own_loop_limits`).
+
+    Raises:
+        ValueError: a joint of base.yaml the robot lacks, or a control period not rl_sar's
+            ``dt x decimation``.
+    """
+    import torch
+
+    folder = Path(folder)
+    base, params = rl_sar_params(folder)
+    missing = [j for j in base["joint_names"] if j not in robot.joint_names]
+    if missing:
+        raise ValueError(f"{folder}: base.yaml joint_names: {missing} are no joints of the robot")
+    period = float(params["dt"]) * int(params["decimation"])
+    if abs(period - robot.control_period) > 1e-9:
+        raise ValueError(
+            f"{folder}: dt x decimation {period} s is not the robot's control period "
+            f"{robot.control_period} s"
+        )
+    slot = np.array([robot.joint_names.index(j) for j in base["joint_names"]])  # slot -> ours
+    ours = slot[np.asarray(params["joint_mapping"])]  # policy entry i -> our joint index
+    kp, kd = np.empty(robot.n_joints), np.empty(robot.n_joints)
+    kp[ours], kd[ours] = params["rl_kp"], params["rl_kd"]
+    scale = np.asarray(params["action_scale"], dtype=float)
+    default = np.asarray(params["default_dof_pos"], dtype=float)
+    lo, hi = np.asarray(params["clip_actions_lower"]), np.asarray(params["clip_actions_upper"])
+    plant = bare_plant(robot, (kp, kd, np.array(robot.home, dtype=float)))
+    m, d, target, step = plant.m, plant.d, plant.target, plant.advance  # target: in place
+    qo, vo = robot.qpos_offset, robot.qvel_offset
+
+    for _ in range(round(SETTLE / period)):
+        step()
+    motion = RlSarMotion(folder / params["motion_file"], 1.0 / period)
+    waist = [list(params["joint_mapping"]).index(s) for s in params["waist_joint_indices"]]
+    motion.reset(d.qpos[3:7].copy(), d.qpos[qo:][ours][waist])
+    net = load_policy(folder / params["model_name"])
+    actions = np.zeros(len(ours), dtype=np.float32)
+    ticks = round(motion.duration / period)
+    if seconds is not None:
+        ticks = min(ticks, round(seconds / period))
+    walk, run = Walk(), Run()
+    schedule = DomainPushes([seed], pushes, period) if pushes else None
+    bare = SimDisturbances(robot, [m], [d])
+    for k in range(ticks):
+        motion.update(k * period)
+        q, dq = d.qpos[qo:][ours], d.qvel[vo:][ours]
+        obs = observation(params, motion, d.qpos[3:7], d.qvel[3:6], q, dq, actions)
+        with torch.no_grad():
+            out = net(torch.from_numpy(obs)[None]).numpy()[0]
+        actions = np.clip(out, lo, hi).astype(np.float32)
+        target[ours] = actions * scale + default
+        if watch is not None:
+            watch(d, target)
+        step()
+        run.walked = walk.ticks = k + 1
+        run.past_limit += past_hard_limit(robot, d.qpos[qo:])
+        if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
+            run.fell_at, run.cause = (k + 1) * period, "fall"
+            break
+        if schedule is not None:
+            schedule(walk, bare)
+    run.walked *= period
+    run.pushes = [t - period for t in schedule.times[0]] if schedule else []  # the frame's time
+    return run

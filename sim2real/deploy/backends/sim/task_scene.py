@@ -102,4 +102,8 @@ def task_scene(robot, plant) -> TaskScene | None:
     scene = getattr(task, "scene", None)
     if not scene:
         return None
-    return TaskScene(robot.directory / scene, plant, robot.floating_base)
+    models = getattr(plant, "models", ())  # the physics asks its own model: a free joint first
+    free = (
+        bool(models) and models[0].njnt > 0 and models[0].jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+    )
+    return TaskScene(robot.directory / scene, plant, free)

@@ -1,3 +1,4 @@
+import functools
 import os
 import subprocess
 import sys
@@ -39,12 +40,26 @@ def stacks():
     return Stacks()
 
 
+@functools.cache
+def _source(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
+
+
 def pytest_itemcollected(item):
     """The ``stacks`` mark on every test that reads another stack's files (asks for the
     ``stacks`` fixture, itself or through its fixtures), before ``-m`` selects: one marker,
-    never forgotten."""
+    never forgotten. And a test marked ``wallclock`` or ``alone`` must be in a file whose text
+    names that mark (``pytest.mark.wallclock``): ``make test`` collects those runs from the
+    files it greps so (the Makefile's WALLCLOCK_FILES, ALONE_FILES), not from every module
+    (collecting all of them took 16 CPU-s for 19 tests)."""
     if "stacks" in getattr(item, "fixturenames", ()):
         item.add_marker(pytest.mark.stacks)
+    for mark in ("wallclock", "alone"):
+        if item.get_closest_marker(mark) and f"pytest.mark.{mark}" not in _source(item.path):
+            raise pytest.UsageError(
+                f"{item.nodeid}: marked {mark!r}, but its file does not name "
+                f"pytest.mark.{mark}: make test would not run it (Makefile, WALLCLOCK_FILES)"
+            )
 
 
 @pytest.hookimpl(trylast=True)

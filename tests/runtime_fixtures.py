@@ -14,13 +14,25 @@ from sim2real.deploy.spec.policy_spec import PolicySpec
 REPO = Path(__file__).resolve().parent.parent
 
 
+#: The shipped policies this process exported, by name (:func:`shipped_onnx`).
+_EXPORTED: dict[str, bytes] = {}
+
+
 def shipped_onnx(name: str, folder: Path) -> Path:
     """The shipped policy ``sim2real/policies/<name>.pt`` exported (parity gate included) to
     ``folder/<name>.onnx``; returns that path. Imports torch (the export) only when called.
 
-    The export runs on one torch thread: two spin-wait in OpenMP on a loaded 2-core machine
+    Exported once per process: a later call writes the first export's bytes (the same
+    checkpoint, the same file) to its own ``folder``, so a test may edit its copy. The export
+    runs on one torch thread: two spin-wait in OpenMP on a loaded 2-core machine
     (PITFALLS.md), and the wall-clock tests export beside the suite (Makefile): go2's export took
     35 CPU-s on two threads beside a load, 1.7 on one."""
+    out = folder / f"{name}.onnx"
+    if name in _EXPORTED:
+        if not folder.is_dir():  # as export_policy refuses a missing output folder
+            raise FileNotFoundError(f"{out}: the output folder {folder} does not exist")
+        out.write_bytes(_EXPORTED[name])
+        return out
     import torch
 
     from sim2real.deploy.export import export_policy
@@ -29,9 +41,11 @@ def shipped_onnx(name: str, folder: Path) -> Path:
     torch.set_num_threads(1)
     try:
         src = REPO / "sim2real" / "policies" / f"{name}.pt"
-        return export_policy(src, out=folder / f"{name}.onnx")
+        path = export_policy(src, out=out)
     finally:
         torch.set_num_threads(threads)
+    _EXPORTED[name] = Path(path).read_bytes()
+    return path
 
 
 def adversarial_onnx(tmp_path, robot, mode, nan_probability=0.0, name="adv.onnx"):

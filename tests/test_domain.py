@@ -230,7 +230,7 @@ def _ranges(domain: str) -> list[str]:
     return [line for line in domain.splitlines() if not line.startswith("#")]
 
 
-def test_soak_runs_the_training_domain_the_policy_carries(tmp_path, capsys):
+def test_soak_runs_the_training_domain_the_policy_carries(tmp_path, capsys, go2_onnx):
     """An ONNX policy with a training domain (``policy-export --domain``; here its metadata set
     directly): soak-test runs it (pushes every 2 s, a payload on the base) unless --no-domain,
     and the report says so; the console says which pushes and how they act (a file without
@@ -243,26 +243,20 @@ def test_soak_runs_the_training_domain_the_policy_carries(tmp_path, capsys):
         "floor_friction = [0.9, 1.0]\nadded_base_mass = [0.5, 1.0]\n"
         "[pushes]\ninterval = 2.0\nmax_velocity = 0.3\n"
     )
-    from sim2real.deploy.export import export_policy
-
     shipped = DATA / "h1" / "h1.onnx"  # the shipped H1 carries its own (policy-export --domain)
     # the same ranges (its comment lines name the reader's module as it was when it was exported)
     assert _ranges(training_domain(shipped)) == _ranges(
         legged_gym_domain(DATA / "h1" / "h1_config.py")
     )
-    source = tmp_path / "go2.onnx"
-    export_policy(
-        Path(__file__).resolve().parents[1] / "sim2real" / "policies" / "go2.pt", out=source
-    )
-    model = onnx.load(str(source))
+    model = onnx.load(str(go2_onnx))  # sim2real/policies/go2.pt exported
     prop = model.metadata_props.add()
     prop.key, prop.value = "training_domain", domain
     policy = tmp_path / "go2_domain.onnx"
     onnx.save(model, str(policy))
     assert training_domain(policy) == domain
-    common = ["--robot", "go2", "--policy", str(policy), "--hours", "0.01", "--no-progress"]
+    common = ["--robot", "go2", "--policy", str(policy), "--no-progress"]
     common += ["--no-film", "--no-faults", "--checkpoint-minutes", "0"]
-    soak_main([*common, "--out", str(tmp_path / "with")])
+    soak_main([*common, "--hours", "0.01", "--out", str(tmp_path / "with")])
     said = capsys.readouterr().out
     assert "soak-test: pushes: every 2 s, the horizontal velocity set to up to 0.3 m/s, as " in said
     assert "forces over 0.1 s spread over the robot's bodies" in said
@@ -271,7 +265,8 @@ def test_soak_runs_the_training_domain_the_policy_carries(tmp_path, capsys):
     assert report["campaign"]["training_domain"] == domain
     assert 0.5 <= s["randomization"]["added_base_mass"] <= 1.0
     assert s["locomotion"]["domain_pushes"] >= 10
-    soak_main([*common, "--no-domain", "--out", str(tmp_path / "without")])
+    # 10.8 s: the domain's pushes (every 2 s) would have come several times
+    soak_main([*common, "--hours", "0.003", "--no-domain", "--out", str(tmp_path / "without")])
     assert "soak-test: pushes:" not in capsys.readouterr().out
     report = json.loads((tmp_path / "without" / "report.json").read_text())
     assert report["campaign"]["training_domain"] is None

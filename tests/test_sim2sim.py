@@ -52,11 +52,9 @@ def shipped_onnx(name: str, tmp_path_factory) -> Path:
     path = REPO / "sim2real" / "policies" / f"{name}.onnx"
     if path.is_file():
         return path
-    from sim2real.deploy.export import export_policy
+    from tests.runtime_fixtures import shipped_onnx as exported
 
-    pt = tmp_path_factory.mktemp(name) / f"{name}.pt"
-    pt.write_bytes((REPO / "sim2real" / "policies" / f"{name}.pt").read_bytes())
-    return export_policy(pt)
+    return exported(name, tmp_path_factory.mktemp(name))  # once per process
 
 
 def soak(out: Path, robot: str, policy: Path, hours: str, sessions: int, *extra: str) -> Path:

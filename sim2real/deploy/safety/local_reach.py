@@ -127,13 +127,16 @@ def local_reach(
     numpy reference of :func:`sim2real.deploy.safety.envelope_kernel.pair_reach` and ``pairs_reach``."""
     pairs, n = weights.shape
     bound = np.zeros((pairs, n))
-    for j in order:
-        s = speeds[:, j].copy()
-        for k in range(n):
-            s = np.where(nest[:, j, k] == 1, s + bound[:, k] * spread[k], s)
-            s = np.where(nest[:, j, k] == 2, s + weights[:, k] * spread[k], s)
-        bound[:, j] = np.where(s < weights[:, j], s, weights[:, j])
-    reach = np.zeros(pairs)
-    for j in range(n):
-        reach = np.where(weights[:, j] != 0.0, reach + bound[:, j] * spread[j], reach)
+    # np.where computes both branches: an unbounded (inf) row times a joint that does not move
+    # it (spread 0) is NaN in the branch not taken
+    with np.errstate(invalid="ignore"):
+        for j in order:
+            s = speeds[:, j].copy()
+            for k in range(n):
+                s = np.where(nest[:, j, k] == 1, s + bound[:, k] * spread[k], s)
+                s = np.where(nest[:, j, k] == 2, s + weights[:, k] * spread[k], s)
+            bound[:, j] = np.where(s < weights[:, j], s, weights[:, j])
+        reach = np.zeros(pairs)
+        for j in range(n):
+            reach = np.where(weights[:, j] != 0.0, reach + bound[:, j] * spread[j], reach)
     return reach

@@ -59,7 +59,9 @@ class VelocityTask:
             from sim2real.deploy.tasks.heading import HeadingHold
 
             self.heading = HeadingHold(envs, heading_gain)
-            self._asked = np.tile(command, (envs, 1))
+            #: (envs, 3) the command asked (vx m/s, vy m/s, yaw rate rad/s) that the heading
+            #: hold turns into the runtime's command (only with a heading hold)
+            self.asked = np.tile(command, (envs, 1))
         self.tracker = CommandTracker(envs, control_period, backend, window=window)
         self._call = None  # the tracker's and the hold's kernels as one table (_compiled_call)
         if self.tracker.truth is not None:
@@ -92,8 +94,8 @@ class VelocityTask:
                     call(runtime, truth)
                     return
         if self.heading is not None:
-            self.tracker(runtime, self._asked)
-            self.heading(runtime, self._asked)
+            self.tracker(runtime, self.asked)
+            self.heading(runtime, self.asked)
         else:
             self.tracker(runtime)
 
@@ -123,7 +125,7 @@ class VelocityTask:
     def report(self, runtime) -> dict:
         loco = self.tracker.summary(runtime)
         if self.heading is not None:
-            loco["command"] = self._asked.tolist()
+            loco["command"] = self.asked.tolist()
             loco["heading_hold_gain"] = self.heading.gain
         return {"goals": None, "locomotion": loco, "missed_goals": 0}
 

@@ -151,7 +151,7 @@ class TaskCall:
             dt=tracker.dt, tolerance=TRACKING_TOLERANCE, settle=SETTLE_TIME,
             yaw_tolerance=YAW_TRACKING_TOLERANCE, gain=gain, rate=rate,
             mode=runtime.mode, command=runtime.velocity_command,
-            asked=task._asked if h is not None else runtime.velocity_command,
+            asked=task.asked if h is not None else runtime.velocity_command,
             heights=np.zeros(envs) if heights is None else heights,
             estimate=runtime.state.base.orientation, orientation=base.orientation,
             gravity=base.projected_gravity, angular=base.angular_velocity,

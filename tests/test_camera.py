@@ -23,7 +23,7 @@ from sim2real.deploy.backends.sim.camera import (
     CameraFaults,
     DepthNoise,
     PlantDepthCamera,
-    attach_depth_camera,
+    attach_plant_camera,
     depth_error,
 )
 from sim2real.deploy.backends.sim.plant import SimBackend
@@ -125,7 +125,7 @@ def test_a_camera_the_mjcf_lacks_is_refused_in_one_line_naming_the_file(go2):
     spec = replace(PolicySpec.for_robot(go2), images=(replace(TINY, camera="chin"),))
     plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2)])
     with pytest.raises(CameraError) as err:
-        attach_depth_camera(plant, spec)
+        attach_plant_camera(plant, spec)
     line = str(err.value)
     assert "\n" not in line and str(go2.mjcf_path) in line and "images[0].camera" in line
     assert '<camera name="chin">' in line and "['head_depth']" in line
@@ -250,7 +250,7 @@ def test_the_depth_of_a_wall_and_the_d435_models_error_at_1_m_and_2_m(go2):
 def test_the_runtime_feeds_a_two_input_policy_the_cameras_frames_at_the_cameras_rate(go2, tmp_path):
     plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
     policy = depth_policy(go2, tmp_path)
-    camera = attach_depth_camera(
+    camera = attach_plant_camera(
         plant, policy.spec, latency=0.03, noise=DepthNoise(k=0, edge_jump=0)
     )
     rt = Runtime(go2, policy, plant)
@@ -277,7 +277,7 @@ def test_the_runtime_feeds_a_two_input_policy_the_cameras_frames_at_the_cameras_
 def test_a_frozen_silent_or_late_camera_stops_the_robot_as_a_stale_sensor(go2, tmp_path, faults):
     plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
     policy = depth_policy(go2, tmp_path)
-    attach_depth_camera(plant, policy.spec, faults=faults)
+    attach_plant_camera(plant, policy.spec, faults=faults)
     rt = Runtime(go2, policy, plant)
     rt.start()
     rt.run(30)
@@ -412,7 +412,7 @@ def test_a_camera_as_late_as_in_training_runs_and_one_later_than_its_spec_says_s
     Go1 student trains with frames 0.25-0.30 s late)."""
     plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
     policy = depth_policy(go2, tmp_path, replace(TINY, rate=10.0, latency=trained))
-    attach_depth_camera(plant, policy.spec, latency=0.5)
+    attach_plant_camera(plant, policy.spec, latency=0.5)
     rt = Runtime(go2, policy, plant)
     rt.start()
     rt.run(50)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim2real.deploy.backends.sim.camera import DepthNoise, attach_depth_camera
+from sim2real.deploy.backends.sim.camera import DepthNoise, attach_plant_camera
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.backends.sim.task_scene import TaskScene
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
@@ -39,7 +39,7 @@ def test_the_shipped_camera_policy_loads_and_its_contract_names_the_image_block(
 @needs_gl
 def test_the_goal_marker_appears_where_the_goal_is_in_the_goal_cameras_view(arm3):
     plant = SimBackend(arm3, "velocity", envs=1)
-    camera = attach_depth_camera(plant, _spec_with_block(arm3), noise=DepthNoise(k=0))
+    camera = attach_plant_camera(plant, _spec_with_block(arm3), noise=DepthNoise(k=0))
     try:
         centres = []
         for goal in ([0.6, 0.4, 0.0], [0.6, -0.4, 0.0], [0.3, 0.0, 0.0]):

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field, replace
 import gymnasium as gym
 import numpy as np
 
-from sim2real.deploy.backends.sim.camera import attach_depth_camera
+from sim2real.deploy.backends.sim.camera import attach_plant_camera
 from sim2real.deploy.backends.sim.plant import SimBackend
 from sim2real.deploy.rig.learner_tick import LearnerTick
 from sim2real.deploy.rig.rig import Rig
@@ -212,7 +212,7 @@ class ReachTask:
         #: a spec with an image block: the plant's camera, rendered as deploy-run renders it (its
         #: rate, latency and depth model; the robot's task scene, its marker at the goal), read
         #: by the runtime's own camera stage (``self.rig.runtime.cameras``) each tick
-        self.camera = attach_depth_camera(self.backend, self.spec, seed=seed + 2)
+        self.camera = attach_plant_camera(self.backend, self.spec, seed=seed + 2)
         #: the episodes' fault schedules (None: faults off) and what they are drawn from
         self.faults = EpisodeFaults(self.backend) if config.faults else None
         self.fault_ranges = training_fault_ranges(config.fault_ranges, config.fault_interval)
@@ -245,8 +245,8 @@ class ReachTask:
         self._prev_dq = np.zeros((envs, self.n))
         self.task = self.rig.task
         self.goal = self.task.goal  # (envs, 3) m
-        if self.camera is not None and self.camera.scene is not None:
-            self.camera.scene.goal = self.goal  # the marker shows the episodes' goals
+        if self.camera is not None:
+            self.camera.show_goal(self.goal)  # the marker shows the episodes' goals
         # per-episode statistics
         self.limit_violations = np.zeros(envs, dtype=np.int64)
         self.interventions = np.zeros(envs, dtype=np.int64)

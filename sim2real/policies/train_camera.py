@@ -9,7 +9,7 @@ arm3's task-scene camera, in which the goal's marker is the only thing in range.
 deploy: the episodes are the state policy's recipe (:class:`sim2real.policies.envs.ReachTask`:
 the runtime's stages, guard and smoother included, the soak's dynamics, sensor and fault draws,
 the recipe's start poses), and the camera is the one ``deploy-run --backend sim`` renders
-(:func:`sim2real.deploy.backends.sim.camera.attach_depth_camera`: the same block, the D435 depth
+(:func:`sim2real.deploy.backends.sim.camera.attach_plant_camera`: the same block, the D435 depth
 model, frames at the block's 30 Hz beside the 200 Hz control loop, held between renders,
 delivered 40 ms late), read by the runtime's own camera stage.
 

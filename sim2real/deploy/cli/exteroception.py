@@ -136,7 +136,7 @@ def attach_plant_camera(args, backend, spec):
     Raises:
         ValueError: a camera the MJCF lacks (CameraError), a rate <= 0 or a latency < 0, no
             OpenGL context to render with."""
-    from sim2real.deploy.backends.sim.camera import CameraFaultRanges, attach_depth_camera
+    from sim2real.deploy.backends.sim import camera as plant_camera
 
     if getattr(spec, "images", ()) and not (
         (args.camera_rate is None or args.camera_rate > 0)
@@ -148,9 +148,9 @@ def attach_plant_camera(args, backend, spec):
         )
     faults = None
     if args.camera_faults == "drawn":  # its own stream: the other draws of --seed stay as they are
-        faults = CameraFaultRanges().sample(np.random.default_rng([args.seed, 99]))
+        faults = plant_camera.CameraFaultRanges().sample(np.random.default_rng([args.seed, 99]))
     try:
-        camera = attach_depth_camera(
+        camera = plant_camera.attach_plant_camera(
             backend, spec, args.camera_rate, args.camera_latency, faults=faults, seed=args.seed
         )
     except RuntimeError as exc:  # no OpenGL context: one line naming MUJOCO_GL
@@ -179,8 +179,9 @@ def camera_report(rt, backend) -> dict | None:
 
 
 def show_goal(backend, goal) -> None:
-    """The plant camera's task scene (where the robot has one) shows ``goal`` ((envs, 3) m, the
-    runtime's goals, written in place each tick) at its goal marker."""
-    scene = getattr(getattr(backend, "camera_source", None), "scene", None)
-    if scene is not None:
-        scene.goal = goal
+    """The plant camera's task scene shows ``goal`` ((envs, 3) m, the runtime's goals) at its
+    goal marker (:meth:`sim2real.deploy.backends.sim.plant_camera.PlantCamera.show_goal`); a
+    hardware camera or none: nothing."""
+    show = getattr(getattr(backend, "camera_source", None), "show_goal", None)
+    if show is not None:
+        show(goal)

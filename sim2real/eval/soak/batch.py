@@ -44,7 +44,7 @@ from sim2real.eval.soak import checkpoint as ckpt
 from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.batch_stats import BatchStats
 from sim2real.eval.soak.batch_tick import BatchTick
-from sim2real.eval.soak.camera_faults import attach_session_cameras, show_goals
+from sim2real.eval.soak.camera_faults import attach_session_cameras
 from sim2real.eval.soak.curriculum_walk import CurriculumWalk
 from sim2real.eval.soak.exhibition import exhibition_task
 from sim2real.eval.soak.faults import SessionFaults
@@ -177,7 +177,8 @@ class SessionBatch:
         )  # fmt: skip
         self.rig.add(BatchTick(self))  # the batch's bookkeeping, after the monitors and task
         self.rt, self.task = self.rig.runtime, self.rig.task
-        show_goals(self.camera, self.rt.goal)  # a task scene's marker at the sessions' goals
+        if self.camera is not None:  # a task scene's marker at the sessions' goals
+            self.camera.show_goal(self.rt.goal)
         self.violations, self.interventions = self.rig.violations, self.rig.interventions
         #: a legged robot's base estimate against the plant's truth (None for an arm)
         self.estimation = self.rig.estimation

@@ -14,7 +14,7 @@ runtime's camera stage (:mod:`sim2real.deploy.runtime.camera`): stale past its l
 ``stale_sensor`` like any sensor.
 
 Hooks (the only lines outside this module): :class:`sim2real.eval.soak.batch.SessionBatch`
-calls :func:`attach_session_cameras` before it makes its runtime and :func:`show_goals` after;
+calls :func:`attach_session_cameras` before it makes its runtime;
 :func:`sim2real.eval.soak.result.session_result` adds :func:`camera_result`'s section.
 """
 
@@ -61,14 +61,6 @@ def attach_session_cameras(backend, spec, configs, ranges: CameraFaultRanges | N
         for c, rng in zip(configs, rngs, strict=True)
     ]
     return attach_plant_camera(backend, spec, faults=faults, seed=rngs)
-
-
-def show_goals(camera, goal) -> None:
-    """The camera's task scene (where the robot has one, :mod:`sim2real.deploy.backends.sim.
-    task_scene`) shows ``goal`` ((envs, 3) m, the runtime's goals, written in place each tick)
-    at its goal marker."""
-    if camera is not None and camera.scene is not None:
-        camera.scene.goal = goal
 
 
 def camera_result(session) -> dict:

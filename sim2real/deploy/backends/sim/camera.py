@@ -14,7 +14,7 @@ rounded to ``depth_unit``.
 
 The frame's timing and the faults (a covered lens reads 0, no depth; a lighting change is a colour
 camera's) are :mod:`sim2real.deploy.backends.sim.plant_camera`'s, shared with the colour camera
-(:mod:`sim2real.deploy.backends.sim.rgb_camera`); :func:`attach_depth_camera` attaches the one a
+(:mod:`sim2real.deploy.backends.sim.rgb_camera`); :func:`attach_plant_camera` attaches the one a
 policy's image block asks for. The depth frame is ``frame.depth_image`` (envs, rows, columns) m.
 """
 
@@ -37,7 +37,6 @@ __all__ = [
     "DepthNoise",
     "PlantCamera",
     "PlantDepthCamera",
-    "attach_depth_camera",
     "attach_plant_camera",
     "depth_error",
 ]
@@ -167,7 +166,7 @@ def depth_error(camera: PlantDepthCamera, frames: int, at: float, env: int = 0) 
     }
 
 
-def attach_depth_camera(
+def attach_plant_camera(
     backend,
     spec,
     rate: float | None = None,
@@ -206,7 +205,3 @@ def attach_depth_camera(
     camera = kind(backend, images[0], rate, latency, noise, faults, seed, where, scene=scene)
     backend.camera_source = camera
     return camera
-
-
-#: The name that says it attaches either kind.
-attach_plant_camera = attach_depth_camera

@@ -161,6 +161,13 @@ class PlantCamera:
         spike = max(f.spike_latency for f in self.env_faults)
         self.in_flight = int(np.ceil((self.latency + spike) * self.rate)) + 2
 
+    def show_goal(self, goal) -> None:
+        """The task scene's goal marker (where the robot has a task scene,
+        :mod:`sim2real.deploy.backends.sim.task_scene`) shows ``goal`` ((envs, 3) m, the run's
+        goals, an array the run writes in place each tick); without a scene, nothing."""
+        if self.scene is not None:
+            self.scene.goal = goal
+
     def scene_data(self, env: int):
         """The ``MjData`` env ``env``'s camera renders: the plant's, or the robot's task scene
         (:class:`~sim2real.deploy.backends.sim.task_scene.TaskScene`) given the plant's pose,

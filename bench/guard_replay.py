@@ -26,8 +26,9 @@ import collections
 import mujoco
 import numpy as np
 
-from bench.push_loops import past_hard_limit, truth_loop, unitree_loop
+from bench.push_loops import truth_loop, unitree_loop
 from bench.push_reference import _entries, _load, push_ranges
+from sim2real.stacks.loops.bare import past_hard_limit
 from sim2real.stacks.loops.unitree_rl_gym import load_torchscript
 
 

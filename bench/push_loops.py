@@ -33,10 +33,8 @@ from sim2real.deploy.core.modes import RUNNING
 from sim2real.eval.world.pushes import DomainPushes, PushRanges
 from sim2real.stacks.loops import unitree_rl_gym
 from sim2real.stacks.loops.bare import (
-    QUIET_AFTER_PUSH,
     RAMP_TIMEOUT,
     STOP_RAISED,
-    BarePlant,
     Run,
     bare_plant,
     past_hard_limit,
@@ -45,11 +43,6 @@ from sim2real.stacks.loops.bare import (
     true_upright,
 )
 from sim2real.stacks.loops.walk import Walk
-
-__all__ = [
-    "QUIET_AFTER_PUSH", "RAMP_TIMEOUT", "STOP_RAISED", "BarePlant", "Run", "bare_plant",
-    "past_hard_limit", "quiet", "true_fall", "true_upright",
-]  # fmt: skip
 
 
 def _bare_run(

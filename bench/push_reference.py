@@ -42,8 +42,6 @@ from pathlib import Path
 import numpy as np
 
 from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from here)
-    STOP_RAISED,
-    Run,
     observes_base_velocity,
     plant_loop,
     runtime_loop,
@@ -52,6 +50,7 @@ from bench.push_loops import (  # noqa: F401 (bench.estimation imports them from
 )
 from bench.push_table import sign_test, summary, survived, table, terrain_table  # noqa: F401
 from sim2real.robots.errors import Sim2RealError
+from sim2real.stacks.loops.bare import Run
 from sim2real.stacks.loops.unitree_rl_gym import load_torchscript
 
 PROG = "python -m bench.push_reference"
@@ -234,7 +233,8 @@ def run_seed(entry: Entry, seed: int, args) -> tuple[Run, Run, dict[str, Run]]:
     robot, policy = _load(entry)
     pushes = push_ranges(entry, robot, args)
     if entry.tracking is not None:  # a clip played once in each loop
-        from bench.push_tracking import rl_sar_loop, tracking_runtime_loop
+        from bench.push_tracking import tracking_runtime_loop
+        from sim2real.stacks.loops.rl_sar_pushed import rl_sar_loop
 
         own = rl_sar_loop(robot, entry.tracking, seed, args.seconds, pushes)
         return own, tracking_runtime_loop(robot, policy, seed, args.seconds, pushes), {}

@@ -9,7 +9,7 @@ from math import comb
 
 import numpy as np
 
-from bench.push_loops import STOP_RAISED, Run
+from sim2real.stacks.loops.bare import STOP_RAISED, Run
 
 
 def survived(run: Run) -> int:

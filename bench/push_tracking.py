@@ -20,8 +20,8 @@ state or in our runtime.
 Both push with the soak's schedule (:class:`~sim2real.eval.world.pushes.DomainPushes`) on the
 clip's clock: push ``k`` of a seed lands after the same clip frame in both loops (the wait drawn
 from the clip's start, ours' first RUNNING tick). A run ends at the clip's last frame or at the
-first true fall (:func:`bench.push_loops.true_fall`), ours also at a stop; the figures are those
-of :class:`bench.push_loops.Run`, walked meaning s of clip played, the pushes' times on the clip's
+first true fall (:func:`sim2real.stacks.loops.bare.true_fall`), ours also at a stop; the figures are those
+of :class:`sim2real.stacks.loops.bare.Run`, walked meaning s of clip played, the pushes' times on the clip's
 clock (the time of the frame read by the tick the push follows) and the fall's at its tick's end.
 """
 
@@ -29,22 +29,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.push_loops import (
-    STOP_RAISED,
-    Run,
-    count_running_tick,
-    finish_run,
-    true_fall,
-    true_upright,
-)
+from bench.push_loops import count_running_tick, finish_run
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.eval.world.pushes import DomainPushes
-from sim2real.stacks.loops.rl_sar_pushed import rl_sar_loop
-
-__all__ = ["rl_sar_loop", "tracking_runtime_loop"]
-
-#: s a run of ours may spend in RAMP_IN before the clip (a fall if it never plays)
-RAMP_TIMEOUT = 10.0
+from sim2real.stacks.loops.bare import RAMP_TIMEOUT, STOP_RAISED, Run, true_fall, true_upright
 
 
 def tracking_runtime_loop(robot, policy, seed: int, seconds: float | None, pushes) -> Run:

@@ -7,16 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.push_loops import (
-    QUIET_AFTER_PUSH,
-    Run,
-    past_hard_limit,
-    quiet,
-    runtime_loop,
-    truth_loop,
-)
+from bench.push_loops import runtime_loop, truth_loop
 from bench.push_reference import Entry, _load, sign_test, summary, survived
 from sim2real.eval.world.pushes import PushRanges, push_velocity
+from sim2real.stacks.loops.bare import QUIET_AFTER_PUSH, Run, past_hard_limit, quiet
 from tests.runtime_fixtures import shipped_onnx
 
 
@@ -100,8 +94,8 @@ def test_on_terrain_ours_is_judged_above_the_ground_and_each_seed_draws_its_tile
 def test_a_level_base_collapsing_vertically_is_no_upright_stop():
     """The bench's upright-stop rule is the soak's ``false_fall_stops``: a level base at its
     standing height is upright while still, not while sinking at 0.5 m/s or faster."""
-    from bench.push_loops import true_upright
     from sim2real.robots import load_robot
+    from sim2real.stacks.loops.bare import true_upright
 
     go2 = load_robot("go2")
     level, height = np.array([1.0, 0.0, 0.0, 0.0]), go2.config.base.standing_height

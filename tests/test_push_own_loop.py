@@ -240,7 +240,7 @@ def test_the_estimate_rows_are_those_of_a_policy_that_observes_the_base_velocity
 def test_the_own_loops_policy_sees_the_base_its_base_hook_writes(tmp_path):
     """OwnLoop's ``base``: the observation's base velocity is what the hook wrote after the
     truth (the estimate-fed loop's), not the truth."""
-    from bench.push_loops import bare_plant
+    from sim2real.stacks.loops.bare import bare_plant
 
     go2 = load_robot("go2")
     blocks = ("base_linear_velocity",) + tuple(

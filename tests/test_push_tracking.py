@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from bench.push_reference import Entry, _load
-from bench.push_tracking import rl_sar_loop, tracking_runtime_loop
+from bench.push_tracking import tracking_runtime_loop
 from sim2real.eval.world.pushes import PushRanges
+from sim2real.stacks.loops.rl_sar_pushed import rl_sar_loop
 from tests.motion_files import G1_FLAGS, dance_folder, g1_xml
 
 

@@ -300,13 +300,20 @@ def _renderer(m, height: int, width: int):
         for flag in ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX"):
             renderer.scene.flags[getattr(mujoco.mjtRndFlag, flag)] = False
     except Exception as exc:  # noqa: BLE001 - every GL backend fails differently
-        backend = os.environ.get("MUJOCO_GL", "(unset)")
-        text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        raise RuntimeError(
-            f"no OpenGL context with MUJOCO_GL={backend} ({text}); headless machines need "
-            "MUJOCO_GL=egl (libegl1, libgl1) or MUJOCO_GL=osmesa (libosmesa6, PyOpenGL)"
-        ) from None
+        raise no_gl_context(exc) from None
     return renderer
+
+
+def no_gl_context(exc: BaseException, who: str = "") -> RuntimeError:
+    """The one-line error of an OpenGL context that could not be made (``exc``, the GL
+    backend's own error, its last line kept), naming ``MUJOCO_GL`` and what a headless machine
+    needs; ``who`` (``"camera 'head': "``) heads it."""
+    backend = os.environ.get("MUJOCO_GL", "(unset)")
+    text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+    return RuntimeError(
+        f"{who}no OpenGL context with MUJOCO_GL={backend} ({text}); headless machines need "
+        "MUJOCO_GL=egl (libegl1, libgl1-mesa-dri) or MUJOCO_GL=osmesa (libosmesa6, PyOpenGL)"
+    )
 
 
 def open_video(args, robot, backend) -> VideoRecorder | None:

@@ -23,6 +23,7 @@ import sys
 import mujoco
 import numpy as np
 
+from sim2real.deploy.observe.video import no_gl_context
 from sim2real.deploy.spec.camera import CameraError
 
 
@@ -104,12 +105,7 @@ class OffscreenCamera:
             self._gl.make_current()
             self._con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
         except Exception as exc:  # noqa: BLE001 - every GL backend fails differently
-            gl = os.environ.get("MUJOCO_GL", "(unset)")
-            text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-            raise RuntimeError(
-                f"camera '{camera}': no OpenGL context with MUJOCO_GL={gl} ({text}); headless "
-                "machines need MUJOCO_GL=egl (libegl1, libgl1-mesa-dri) or MUJOCO_GL=osmesa"
-            ) from None
+            raise no_gl_context(exc, f"camera '{camera}': ") from None
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
         self._scene = mujoco.MjvScene(model, maxgeom=10000)
         for flag in flags_off:

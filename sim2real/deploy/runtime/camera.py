@@ -3,24 +3,24 @@ block reads, the last one delivered and its age, the frame history the graph tak
 judged stale like any sensor.
 
 Each tick its ``source`` (a simulated plant's camera,
-:class:`sim2real.deploy.backends.sim.camera.PlantDepthCamera`; on hardware a driver writing the
-frame) leaves the newest delivered frame in ``frame.depth_image`` ((envs, rows, columns) m) and
-its capture time in ``frame.depth_stamp`` ((envs,) s); for an RGB block
-(:class:`sim2real.deploy.spec.camera.RgbImageBlock`) ``frame.rgb_image`` ((envs, rows, columns,
-3) uint8 R, G, B; a driver delivering OpenCV's BGR flips it first) and ``frame.rgb_stamp``
-(``FRAME_FIELDS``; the plant's :class:`sim2real.deploy.backends.sim.rgb_camera.PlantRgbCamera`).
-A frame is fresh when its stamp is newer
-than the last one taken and its image is not the last one's again (a frozen driver repeats its
-buffer with new stamps; a real image never repeats bit for bit, its noise differs; a frame
-without one valid (non-zero) pixel, a view of open sky or a black image, may, and is fresh).
-A fresh frame is checked (:func:`sim2real.deploy.spec.camera.check_frames`: a non-numeric frame
-or one of another shape is refused in one line), preprocessed
+:class:`sim2real.deploy.backends.sim.plant_camera.PlantCamera`; on hardware a driver's feed,
+:class:`sim2real.deploy.backends.camera.feed.CameraFeed`) leaves the newest delivered frame in
+``frame.depth_image`` ((envs, rows, columns) m) and its capture time in ``frame.depth_stamp``
+((envs,) s); for an RGB block (:class:`sim2real.deploy.spec.camera.RgbImageBlock`)
+``frame.rgb_image`` ((envs, rows, columns, 3) uint8 R, G, B; a driver delivering OpenCV's BGR flips
+it first) and ``frame.rgb_stamp`` (``FRAME_FIELDS``; the plant's
+:class:`sim2real.deploy.backends.sim.rgb_camera.PlantRgbCamera`). A frame is fresh when its stamp
+is newer than the last one taken and its image is not the last one's again (a frozen driver repeats
+its buffer with new stamps; a real image never repeats bit for bit, its noise differs; a frame
+without one valid (non-zero) pixel, a view of open sky or a black image, may, and is fresh). A
+fresh frame is checked (:func:`sim2real.deploy.spec.camera.check_frames`: a non-numeric frame or
+one of another shape is refused in one line), preprocessed
 (:func:`sim2real.deploy.spec.camera.preprocess`) and pushed into the history; the graph's image
 input ((envs, frames, rows, columns) of depth, its layout the block's ``input_shape``; oldest
 first, ``skip`` delivered frames apart) is written in place into the array the policy binds
-(``policy.images[block.input]``). Until an env has the history's span of frames, its oldest
-entries repeat its first frame (Extreme Parkour fills its ``depth_buffer`` with copies of the
-first image at an episode's start).
+(``policy.images[block.input]``). Until an env has the history's span of frames, its oldest entries
+repeat its first frame (Extreme Parkour fills its ``depth_buffer`` with copies of the first image
+at an episode's start).
 
 Stale: an env whose last fresh frame is older than its ``stale_limit`` (or that has had none
 ``stale_limit`` s after the stage's first tick: a camera streams before the loop starts) is
@@ -95,18 +95,18 @@ class CameraInput:
         """
         if self.source is not None:
             self.source.fill(frame)
-        depth = getattr(frame, self.image_field, None)
-        if depth is not None:
-            depth = check_frames(depth, self.block, self.envs, f"frame.{self.image_field}")
+        raw = getattr(frame, self.image_field, None)
+        if raw is not None:
+            raw = check_frames(raw, self.block, self.envs, f"frame.{self.image_field}")
             stamp = np.asarray(getattr(frame, self.stamp_field), dtype=float)
             newer = stamp > self._looked  # NaN: nothing delivered
             for e in np.flatnonzero(newer):
                 self._looked[e] = stamp[e]
-                if np.array_equal(depth[e], self._raw[e]) and (depth[e] > 0).any():  # frozen
+                if np.array_equal(raw[e], self._raw[e]) and (raw[e] > 0).any():  # frozen
                     self.repeated[e] += 1
                     self._frozen[e] += 1
                     continue
-                self._push(e, depth[e], stamp[e])
+                self._push(e, raw[e], stamp[e])
         if np.isnan(self._start):
             self._start = float(np.min(frame.time))
         np.subtract(frame.time, np.maximum(self.stamp, self._start), out=self.time_since_fresh)
@@ -128,16 +128,16 @@ class CameraInput:
         images = getattr(policy, "images", {}).get(self.block.input)
         supervision.safe_stop(self.update(frame, images), "stale_sensor")
 
-    def _push(self, e: int, depth: np.ndarray, stamp: float) -> None:
+    def _push(self, e: int, raw: np.ndarray, stamp: float) -> None:
         span = self._ring.shape[1]
-        image = preprocess(depth[None], self.block)[0]
+        image = preprocess(raw[None], self.block)[0]
         if self.taken[e] == 0:  # the first frame fills the history
             self._ring[e] = image
         else:
             self._ring[e, self.taken[e] % span] = image
         self.taken[e] += 1
         self._frozen[e] = 0
-        self._raw[e] = depth
+        self._raw[e] = raw
         self.stamp[e] = stamp
         newest = (self.taken[e] - 1) % span
         self.image[e] = self._ring[e, (newest - self._back) % span]

@@ -1,6 +1,7 @@
 """What a camera costs and how wrong it is: the Go2 with a head camera (the way a user
 adds one: a ``<camera>`` on the base in a copy of the robot's folder, :func:`head_camera_robot`),
 MuJoCo's offscreen depth render per frame at Extreme Parkour's 60 x 106 and at 240 x 424, its
+arm3's task scene as the shipped camera policy sees it (``goal_camera``, 96 x 72 depth), its
 colour render at 96 x 128 and at LeRobot's 480 x 640 (with shadows, as
 :class:`~sim2real.deploy.backends.sim.rgb_render.RgbRenderer` draws it) and the colour sensor
 model (OV5647 noise, drift, uint8) per frame, the depth model's error on a flat target 1 m and
@@ -71,6 +72,32 @@ def render_costs(robot, block, frames: int) -> np.ndarray:
     return np.asarray(costs, dtype=np.int64)
 
 
+def task_scene_costs(frames: int) -> np.ndarray:
+    """(frames,) ns, one render of arm3's task scene by the shipped camera policy's own block
+    (``arm_camera.onnx``: ``goal_camera``, 96 x 72 depth, a camera outside the robot's MJCF, so
+    rendered from robot.toml's ``[task] scene``, its goal marker shown), as
+    :func:`~sim2real.deploy.backends.sim.camera.attach_plant_camera` builds it for deploy-run."""
+    import sim2real.policies
+    from sim2real.deploy.backends.sim.camera import attach_plant_camera
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.onnx_policy import OnnxPolicy
+    from sim2real.robots import load_robot
+
+    robot = load_robot("arm3")
+    shipped = Path(sim2real.policies.__file__).parent / "arm_camera.onnx"
+    spec = OnnxPolicy(shipped, robot).spec
+    plant = SimBackend(robot, spec.action.mode, envs=1)
+    camera = attach_plant_camera(plant, spec)
+    camera.true_depth()  # warm
+    costs = []
+    for _ in range(frames):
+        t0 = time.perf_counter_ns()
+        camera.true_depth()
+        costs.append(time.perf_counter_ns() - t0)
+    camera.close()
+    return np.asarray(costs, dtype=np.int64)
+
+
 def rgb_costs(robot, block, frames: int) -> tuple[np.ndarray, np.ndarray]:
     """(frames,) ns each: one colour render of the head camera (no sensor model), and the
     sensor model as a frame meets it (:meth:`~sim2real.deploy.backends.sim.rgb_camera.
@@ -128,6 +155,7 @@ def measure(out: Path, frames: int) -> dict:
         timings = {
             "render 60 x 106 (Extreme Parkour)": render_costs(robot, small, frames),
             "render 240 x 424": render_costs(robot, large, frames),
+            "render arm3 task scene 96 x 72": task_scene_costs(frames),
         }
         for name, block in (("96 x 128", rgb_small), ("480 x 640 (LeRobot)", rgb_large)):
             render, sensor = rgb_costs(robot, block, frames)
@@ -184,7 +212,7 @@ def _percentiles(ns: np.ndarray) -> dict:
 def render_lines(sec: dict, add) -> None:
     """The ``camera`` section of the bench's table (:func:`bench.render.render`)."""
     add(
-        f"== camera: the Go2's head camera, MuJoCo offscreen depth and RGB (1 env), "
+        f"== camera: the Go2's head camera and arm3's task scene, MuJoCo offscreen depth and RGB (1 env), "
         f"{sec['frames']} frames; the D435 model's error on a wall (datasheet: RMS <= 2 % at 2 m)"
     )
     for r in sec["rows"]:

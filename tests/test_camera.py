@@ -313,6 +313,7 @@ def test_the_bench_item_times_the_render_and_states_the_error_at_1_m_and_2_m(tmp
     assert [r["what"] for r in sec["rows"]] == [
         "render 60 x 106 (Extreme Parkour)",
         "render 240 x 424",
+        "render arm3 task scene 96 x 72",
         "render RGB 96 x 128",
         "RGB sensor model 96 x 128",
         "render RGB 480 x 640 (LeRobot)",

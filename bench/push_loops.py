@@ -30,8 +30,8 @@ import numpy as np
 
 from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.core.modes import RUNNING
+from sim2real.deploy.core.stacks import STACK_REGISTRY
 from sim2real.eval.world.pushes import DomainPushes, PushRanges
-from sim2real.stacks.loops import unitree_rl_gym
 from sim2real.stacks.loops.bare import (
     RAMP_TIMEOUT,
     STOP_RAISED,
@@ -100,7 +100,9 @@ def unitree_loop(
     default = np.array(cfg["default_angles"], float)
     kp, kd = np.array(cfg["kps"], float), np.array(cfg["kds"], float)
     plant = bare_plant(robot, (kp, kd, default.copy()))
-    act = unitree_rl_gym.controller(cfg, net, plant, command)
+    # legged_gym's own loop, through the stacks' registry (sim2real/stacks/legged_gym.py)
+    controller = STACK_REGISTRY.get("legged_gym").face("own_loop")
+    act = controller(cfg, net, plant, command)
     return _bare_run(robot, plant, seed, seconds, pushes, act, path, watch)
 
 

@@ -199,8 +199,9 @@ def rl_sar_run(entry: Entry, robot, seed: int, args, pushes, terrain) -> Run:
     (:mod:`sim2real.stacks.loops.himloco_terrain_loop`: rl_sar's runtime on unitree_mujoco's MJCF
     of ``entry.rl_sar_key``'s robot, true state) under the same pushes on the same tiles, as a
     :class:`Run`."""
-    from sim2real.stacks.loops.himloco_terrain_loop import run
+    from sim2real.deploy.core.stacks import STACK_REGISTRY
 
+    run = STACK_REGISTRY.get("rl_sar").face("own_loop")  # sim2real/stacks/rl_sar.py
     vx = float(args.command.split(",")[0])  # vy and yaw 0 (checked by _entries)
     ours = {}
     if getattr(args, "rl_sar_plant", False):  # like against like: our plant, motors, sensors

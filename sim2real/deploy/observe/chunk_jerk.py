@@ -53,7 +53,11 @@ def boundary_jerk(
 
     def peaks(ticks) -> np.ndarray:
         return np.asarray(
-            [j[max(0, s - 3) : s - 3 + span].max() for s in ticks if s >= 3 and s - 3 + span <= len(j)]
+            [
+                j[max(0, s - 3) : s - 3 + span].max()
+                for s in ticks
+                if s >= 3 and s - 3 + span <= len(j)
+            ]
         )
 
     b, i = peaks(starts), peaks(inside)

@@ -174,7 +174,6 @@ class LeRobotChunkPolicy:
         ]
         self._out = np.zeros((envs, self.n), np.float32)  # the held actions, in [-1, 1]
         self._wait = np.zeros(envs)  # s to each env's next policy tick (<= 0: this call)
-        self._fresh = np.ones(envs, dtype=bool)  # no action yet since the last reset
         self.new_chunk = np.zeros(envs, dtype=bool)
         self.policy_tick = np.zeros(envs, dtype=bool)
         self.policy_ticks = np.zeros(envs, dtype=np.int64)
@@ -194,7 +193,6 @@ class LeRobotChunkPolicy:
         for e in np.flatnonzero(mask):
             self.chunks[e].reset()
         self._wait[mask] = 0.0
-        self._fresh[mask] = True
 
     # ------------------------------------------------------------------ units
     def to_lerobot(self, q: np.ndarray) -> np.ndarray:
@@ -253,7 +251,6 @@ class LeRobotChunkPolicy:
         target = self.to_joints(chunks.step(predict))
         action = (target - self._offset) / self._scale
         self._out[e] = np.clip(action, -self._clip, self._clip)
-        self._fresh[e] = False
         self.policy_ticks[e] += 1
         if chunks.calls != calls:
             self.new_chunk[e] = True
@@ -264,7 +261,6 @@ class LeRobotChunkPolicy:
         return {
             "out": self._out,
             "wait": self._wait,
-            "fresh": self._fresh,
             "policy_ticks": self.policy_ticks,
             "calls": self.calls,
         }

@@ -77,10 +77,13 @@ def test_the_guard_clamps_a_chunk_that_leaves_the_soft_limits(tmp_path):
     assert r["violations"]["any"] == 0
 
 
-def test_a_chunked_policy_state_round_trips(tmp_path, so101):
+@pytest.mark.parametrize("steps, coeff", [(4, None), (1, 0.01)], ids=["queue", "ensembling"])
+def test_a_chunked_policy_state_round_trips(tmp_path, so101, steps, coeff):
     from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
 
-    path = write_chunk_onnx(tmp_path / "a.onnx", chunk_size=6, n_action_steps=4, fps=30.0)
+    path = write_chunk_onnx(
+        tmp_path / "a.onnx", chunk_size=6, n_action_steps=steps, coeff=coeff, fps=30.0
+    )
     a, b = LeRobotChunkPolicy(path, so101), LeRobotChunkPolicy(path, so101)
     obs = np.zeros((1, a.spec.obs_dim), np.float32)
     for _ in range(7):
@@ -89,6 +92,33 @@ def test_a_chunked_policy_state_round_trips(tmp_path, so101):
     for _ in range(12):
         np.testing.assert_array_equal(a(obs), b(obs))
         assert (a.new_chunk == b.new_chunk).all()
+
+
+def test_the_runtimes_state_dict_carries_the_chunks(tmp_path, so101):
+    """A run's state (the runtime's, the chunked policy's among its stages, the plant's) loaded
+    into a second rig mid-chunk: both write the same commands after."""
+    from sim2real.deploy.backends.sim.plant import SimBackend
+    from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
+    from sim2real.deploy.rig.rig import Rig
+
+    path = write_chunk_onnx(tmp_path / "a.onnx", chunk_size=6, n_action_steps=4, image_shape=None)
+    rigs = []
+    for _ in range(2):
+        backend = SimBackend(so101, "position", envs=1, seed=0)
+        backend.open()
+        rig = Rig(so101, LeRobotChunkPolicy(path, so101), backend, envs=1)
+        rig.start()
+        rigs.append(rig)
+    a, b = rigs
+    for _ in range(157):  # past RAMP_IN, mid-chunk
+        a.runtime.tick()
+    assert a.runtime.mode_names() == ["RUNNING"]
+    b.runtime.load_state_dict(a.runtime.state_dict())
+    for _ in range(40):
+        a.runtime.tick()
+        b.runtime.tick()
+        np.testing.assert_array_equal(a.runtime.command, b.runtime.command)
+    assert (a.runtime.policy.calls == b.runtime.policy.calls).all()
 
 
 def test_boundary_jerk_of_a_step_at_a_boundary():

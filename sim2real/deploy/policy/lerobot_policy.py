@@ -257,6 +257,34 @@ class LeRobotChunkPolicy:
             self.calls[e] += 1
 
     # ------------------------------------------------------------------ state
+    def _packed(self) -> dict:
+        """Each env's :class:`ActionChunks` state as arrays with a leading env axis: ``queue``
+        (envs, n_action_steps, n) and ``queue_len``; ``ens`` (envs, chunk_size, n) and
+        ``ens_len`` (-1: no ensemble yet), ``count`` (envs, chunk_size); ``chunk_calls``."""
+        c, envs, n = self.contract, self.envs, self.contract.action_dim
+        out = {
+            "queue": np.zeros((envs, c.n_action_steps, n), np.float32),
+            "queue_len": np.zeros(envs, np.int64),
+            "ens": np.zeros((envs, c.chunk_size, n), np.float32),
+            "ens_len": np.full(envs, -1, np.int64),
+            "count": np.zeros((envs, c.chunk_size), np.int64),
+            "chunk_calls": np.zeros(envs, np.int64),
+        }
+        for e, ch in enumerate(self.chunks):
+            st = ch.state_dict()
+            out["queue_len"][e] = len(st["queue"])
+            if st["queue"]:
+                out["queue"][e, : len(st["queue"])] = np.stack(st["queue"])
+            if st["ens"] is not None:
+                k = len(st["ens"])
+                out["ens"][e, :k], out["count"][e, :k], out["ens_len"][e] = (
+                    st["ens"],
+                    st["count"],
+                    k,
+                )
+            out["chunk_calls"][e] = st["calls"]
+        return out
+
     def _fields(self) -> dict:
         return {
             "out": self._out,
@@ -266,21 +294,27 @@ class LeRobotChunkPolicy:
         }
 
     def state_dict(self, env: int | None = None) -> dict:
-        """Each env's queue or ensemble (``chunks``), the time to its next policy tick, the
-        held action and the counters (copies; ``env``: that env's only)."""
-        state = take(self._fields(), env)
-        picked = self.chunks if env is None else [self.chunks[env]]
-        state["chunks"] = [ch.state_dict() for ch in picked]
-        return state
+        """Each env's queue or ensemble (:meth:`_packed`), the time to its next policy tick
+        (``wait``, s), the held action (``out``) and the counters (copies with a leading env
+        axis; ``env``: that env's only)."""
+        return take(self._fields() | self._packed(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
         """Restore :meth:`state_dict`'s output (of all envs, or into ``env``).
 
         Raises:
             StateDictError: a missing field or another shape (nothing written)."""
-        state = dict(state)
-        chunks = state.pop("chunks")
-        put(self._fields(), state, env)
-        targets = self.chunks if env is None else [self.chunks[env]]
-        for ch, s in zip(targets, chunks, strict=True):
-            ch.load_state_dict(s)
+        packed = self._packed()
+        fields = self._fields() | packed
+        put(fields, state, env)  # checks every field before writing
+        envs = range(self.envs) if env is None else [env]
+        for e in envs:
+            k, q = int(packed["ens_len"][e]), int(packed["queue_len"][e])
+            self.chunks[e].load_state_dict(
+                {
+                    "queue": list(packed["queue"][e, :q]),
+                    "ens": None if k < 0 else packed["ens"][e, :k],
+                    "count": None if k < 0 else packed["count"][e, :k],
+                    "calls": int(packed["chunk_calls"][e]),
+                }
+            )

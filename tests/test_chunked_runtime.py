@@ -43,8 +43,10 @@ def test_a_chunked_policy_runs_in_the_runtime_at_its_own_rate(tmp_path, so101, c
         step_deg=1.5,
     )  # fmt: skip
     code, r = _run(tmp_path, path, "--backend", "sim", "--duration", "3")
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     assert code == EXIT_CLEAN, out
+    assert "LeRobot act policy at 25 Hz beside the servo loop, 4 of 6 actions" in captured.err
     c = r["chunks"]
     assert c["policy_ticks_per_chunk"] == [4] and c["servo_ticks_per_policy_tick"] == [4]
     assert c["running_stretches"] == 1 and c["joints"] == "true"

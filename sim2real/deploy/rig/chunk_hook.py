@@ -48,6 +48,7 @@ class ChunkHook(RunHook):
         self._since = 0  # policy ticks since the last chunk
         self._servo_gaps: list[int] = []
         self._last_policy = None
+        self._stretch_starts: list[int] = []  # recorded ticks where a RUNNING stretch began
 
     def after_tick(self, runtime) -> None:
         if runtime.policy is not self.policy:  # another policy took over (a hand-over)
@@ -65,6 +66,7 @@ class ChunkHook(RunHook):
         tick, new = bool(self.policy.policy_tick[0]), bool(self.policy.new_chunk[0])
         if not self._running:  # the first RUNNING tick: the first chunk, from rest
             self.starts += 1
+            self._stretch_starts.append(k)
             self._since, self._last_policy = 0, None
         elif new:
             self.boundaries.append(k)
@@ -99,10 +101,22 @@ class ChunkHook(RunHook):
             "servo_ticks_per_policy_tick": sorted(set(self._servo_gaps)),
             "joints": "true" if self.truth else "estimated",
         }
+        boundaries, ticks = (
+            self._whole(self.boundaries, p.period / dt),
+            self._whole(self.policy_ticks, p.period / dt),
+        )
         for what in ("position", "target", "command"):
             x = np.asarray(getattr(self, what)).reshape(-1, self.rig.robot.n_joints)
-            out[what] = boundary_jerk(x, dt, p.period, self.boundaries, self.policy_ticks)
+            out[what] = boundary_jerk(x, dt, p.period, boundaries, ticks)
         return out
+
+    def _whole(self, ticks: list[int], period_ticks: float) -> list[int]:
+        """``ticks`` whose jerk window (``x[s - 3 : s + span]``) lies within one RUNNING
+        stretch and does not start at one (the stretches are recorded end to end; a stretch's
+        first tick is its first chunk, from rest)."""
+        span = max(1, int(round(period_ticks)))
+        starts = np.asarray(self._stretch_starts, dtype=np.int64)
+        return [s for s in ticks if not ((starts >= s - 2) & (starts <= s + span - 1)).any()]
 
     def contribute(self, report: dict) -> None:
         report["chunks"] = self.figures()

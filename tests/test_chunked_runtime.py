@@ -186,11 +186,11 @@ def test_a_camera_key_feeds_from_a_recorded_video_on_the_plant(tmp_path):
 
 
 def test_a_video_that_ends_stops_the_chunked_policy_safely(tmp_path):
-    """No loop: the video's last frame is 2 s in; the camera falls silent, is stale, and the
+    """No loop: the video's last frame is 1.5 s in; the camera falls silent, is stale, and the
     runtime stops the robot (stale_sensor) as for any sensor."""
-    video = _video(tmp_path / "front.mkv", 60)
+    video = _video(tmp_path / "front.mkv", 45)
     code, r = _run(
-        tmp_path, _camera_policy(tmp_path), "--backend", "sim", "--realtime", "--duration", "4",
+        tmp_path, _camera_policy(tmp_path), "--backend", "sim", "--realtime", "--duration", "3",
         "--camera-source", f"front=opencv:{video}", "--overrun-limit", "1",
     )  # fmt: skip
     assert code == EXIT_FAULT

@@ -63,6 +63,15 @@ def test_a_chunked_policy_runs_in_the_runtime_at_its_own_rate(tmp_path, so101, c
     assert "chunk jerk, target, no smoother: after a boundary" in out
 
 
+def test_a_batch_of_robots_runs_one_chunk_queue_each(tmp_path):
+    path = write_chunk_onnx(
+        tmp_path / "act.onnx", chunk_size=6, n_action_steps=3, fps=25.0, image_shape=None
+    )
+    code, r = _run(tmp_path, path, "--backend", "sim", "--duration", "2", "--envs", "2")
+    assert code == EXIT_CLEAN and r["final_state"] == ["RUNNING", "RUNNING"]
+    assert r["chunks"]["policy_ticks_per_chunk"] == [3]
+
+
 def test_the_guard_clamps_a_chunk_that_leaves_the_soft_limits(tmp_path):
     """A chunk that runs the arm away (a 6 deg step per action on every joint, an arm that
     climbs): the guard holds the held targets inside the workspace and off self-collision,

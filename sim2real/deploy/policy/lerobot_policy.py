@@ -189,6 +189,8 @@ class LeRobotChunkPolicy:
         """An episode's start in the envs of ``envs`` (bool mask; None: all): no queued action,
         their next call is a policy tick with a new chunk (module docstring). The counters run
         on."""
+        if envs is not None:
+            self.bind_batch(len(envs))  # the runtime's batch (its start resets every env)
         mask = np.ones(self.envs, bool) if envs is None else np.asarray(envs, dtype=bool)
         for e in np.flatnonzero(mask):
             self.chunks[e].reset()
@@ -304,6 +306,8 @@ class LeRobotChunkPolicy:
 
         Raises:
             StateDictError: a missing field or another shape (nothing written)."""
+        if env is None and "wait" in state:  # a batch's state: its size
+            self.bind_batch(len(np.asarray(state["wait"])))
         packed = self._packed()
         fields = self._fields() | packed
         put(fields, state, env)  # checks every field before writing

@@ -116,10 +116,12 @@ def write_chunk_onnx(
     step_deg: float = 2.0,
     gain: float = 0.5,
     image_shape=(3, 8, 8),
+    camera_key: str = "observation.images.front",
 ) -> Path:
     """A stand-in for an exported ACT with the export's inputs, output and contract (built with
     onnx.helper, no lerobot): action i of a chunk is ``gain`` x the state plus ``i * step_deg`` on
-    every entry (plus 0 x the front image's mean), so a chunk is a ramp and each new chunk starts
+    every entry (plus 0 x the camera image's mean; ``image_shape`` None: no camera; ``camera_key``
+    its camera's key), so a chunk is a ramp and each new chunk starts
     again from the state: a target that jumps back at every chunk boundary, and an arm that settles
     where ``gain`` x state + the ramp holds it (LeRobot's units: degrees, gripper percent)."""
     import onnx
@@ -134,26 +136,29 @@ def write_chunk_onnx(
         helper.make_node("Mul", ["observation.state", "gain"], ["sg"]),
         helper.make_node("Unsqueeze", ["sg", "axis1"], ["s1"]),
         helper.make_node("Add", ["s1", "offsets"], ["ramp"]),
-        helper.make_node("ReduceMean", ["observation.images.front"], ["m"], keepdims=0),
-        helper.make_node("Mul", ["m", "zero"], ["m0"]),
-        helper.make_node("Add", ["ramp", "m0"], ["action_chunk"]),
     ]
+    if image_shape is None:  # a state-only policy
+        nodes.append(helper.make_node("Identity", ["ramp"], ["action_chunk"]))
+    else:
+        nodes += [
+            helper.make_node("ReduceMean", [camera_key], ["m"], keepdims=0),
+            helper.make_node("Mul", ["m", "zero"], ["m0"]),
+            helper.make_node("Add", ["ramp", "m0"], ["action_chunk"]),
+        ]
     inits = [
         helper.make_tensor("axis1", TensorProto.INT64, [1], [1]),
         helper.make_tensor(
             "offsets", TensorProto.FLOAT, [1, chunk_size, 6], offsets.reshape(-1).tolist()
         ),
-        helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
         helper.make_tensor("gain", TensorProto.FLOAT, [], [gain]),
-    ]
+    ] + [helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0])] * (image_shape is not None)
     graph = helper.make_graph(
         nodes,
         "chunk_ramp",
-        [
-            helper.make_tensor_value_info("observation.state", TensorProto.FLOAT, [1, 6]),
-            helper.make_tensor_value_info(
-                "observation.images.front", TensorProto.FLOAT, [1, *image_shape]
-            ),
+        [helper.make_tensor_value_info("observation.state", TensorProto.FLOAT, [1, 6])]
+        + [
+            helper.make_tensor_value_info(camera_key, TensorProto.FLOAT, [1, *shape])
+            for shape in ([] if image_shape is None else [image_shape])
         ],
         [helper.make_tensor_value_info("action_chunk", TensorProto.FLOAT, [1, chunk_size, 6])],
         inits,
@@ -164,12 +169,12 @@ def write_chunk_onnx(
         policy_type="act",
         state_dim=6,
         env_state_dim=0,
-        cameras=(("observation.images.front", tuple(image_shape)),),
+        cameras=() if image_shape is None else ((camera_key, tuple(image_shape)),),
         action_dim=6,
         normalization={
             "observation.state": identity,
-            "observation.images.front": identity,
             "action": identity,
+            **({} if image_shape is None else {camera_key: identity}),
         },
         n_obs_steps=1,
         chunk_size=chunk_size,

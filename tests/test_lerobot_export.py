@@ -20,7 +20,8 @@ def lerobot_act_folder(
     folder, *, chunk_size=8, n_action_steps=3, coeff=None, seed=0, cameras=True, env_state=False
 ):
     """A small ACT policy saved by lerobot's ACTPolicy and processors (random weights; a
-    ResNet-18 backbone without pretrained weights, as ACTConfig requires a ResNet)."""
+    ResNet-18 backbone without pretrained weights, as ACTConfig requires a ResNet); ``cameras``
+    True: a front and a wrist camera, ``"front"``: the front one, False: none."""
     pytest.importorskip(
         "lerobot", reason="the extra 'lerobot' (lerobot's own classes) is not installed"
     )
@@ -35,6 +36,8 @@ def lerobot_act_folder(
     torch.manual_seed(seed)
     shape = (3, 32, 40)
     cams = {"observation.images.front": shape, "observation.images.wrist": shape} if cameras else {}
+    if cameras == "front":  # one camera
+        cams = {"observation.images.front": shape}
     inputs = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,))}
     if env_state:
         inputs["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(3,))
@@ -133,3 +136,43 @@ def test_without_lerobot_the_export_names_the_extra(tmp_path, capsys):
     assert main([str(folder), "--fps", "30"]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err.strip()
     assert "pip install 'sim2real-deploy[lerobot]'" in err and "\n" not in err
+
+
+def test_an_exported_act_with_a_camera_runs_in_deploy_run_on_a_recorded_video(tmp_path, capsys):
+    """lerobot's ACT with one camera, exported, through deploy-run on the plant with its camera
+    from a video written by cv2.VideoWriter: a chunk every n_action_steps policy ticks, the
+    video's frames taken; the same ACT with two cameras is refused in one line (the runtime
+    reads one camera per policy)."""
+    cv2 = pytest.importorskip("cv2", reason="OpenCV (the extra 'camera') is not installed")
+    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT as RUN_BAD_INPUT
+    from sim2real.deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT, deploy_run_main
+
+    folder = lerobot_act_folder(tmp_path / "pm", cameras="front", n_action_steps=3)
+    out = tmp_path / "act.onnx"
+    assert main([str(folder), "--robot", "so101", "--fps", "30", "--out", str(out)]) == EXIT_OK
+    video = tmp_path / "front.mkv"
+    w = cv2.VideoWriter(str(video), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"FFV1"), 30, (40, 32))
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        w.write(rng.integers(0, 255, (32, 40, 3), dtype=np.uint8))
+    w.release()
+    report = tmp_path / "r.json"
+    argv = ["--backend", "sim", "--realtime", "--robot", "so101", "--policy", str(out),
+            "--duration", "3", "--camera-source", f"front=opencv:{video},loop",
+            "--overrun-limit", "1", "--report", str(report)]  # fmt: skip
+    code = deploy_run_main(argv)
+    import json
+
+    r = json.loads(report.read_text())
+    # a loaded machine may starve the video's decoder: a stale stop is the runtime's answer
+    stale = r["faults"]["by_cause"]["stale_sensor"]
+    assert code == EXIT_CLEAN or (code == EXIT_FAULT and r["faults"]["safe_stops"] == stale >= 1)
+    assert r["chunks"]["policy_ticks_per_chunk"] == [3] and r["camera"]["frames_taken"][0] >= 15
+    two = lerobot_act_folder(tmp_path / "pm2", cameras=True)
+    out2 = tmp_path / "act2.onnx"
+    assert main([str(two), "--robot", "so101", "--fps", "30", "--out", str(out2)]) == EXIT_OK
+    capsys.readouterr()
+    argv = ["--backend", "sim", "--robot", "so101", "--policy", str(out2), "--duration", "1"]
+    assert deploy_run_main(argv) == RUN_BAD_INPUT
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "2 cameras" in line and "the runtime reads one camera per policy" in line

@@ -46,15 +46,9 @@ def test_no_runtime_is_built_outside_the_rig():
 
 #: The modules that build a part outside the rig, and why. The soak's own-loop reference replays
 #: a fresh guard on another loop's states (no run of ours: nothing it changes is applied).
-#: LeRobot's chunked policy (an action chunk per call at its own rate, beside the control tick)
-#: runs outside the Runtime until the runtime takes a policy slower than its control tick: a
-#: known gap (docs/lerobot.md), listed here so that no other module joins it unseen.
 BY_HAND = {
     "sim2real/eval/soak/own_loop_limits.py": {"SafetyGuard"},
-    "sim2real/eval/lerobot/action_chunks.py": {
-        "JointStateEstimator", "SafetyGuard", "CommandSmoother",
-    },
-}  # fmt: skip
+}
 
 
 def test_no_part_of_a_run_is_put_together_by_hand():

@@ -2,7 +2,8 @@
 (``config.json``, ``model.safetensors``, the processors' normalisation statistics), read by
 :mod:`sim2real.deploy.spec.foreign.lerobot` and exported by ``policy-export FOLDER --robot R``
 (:mod:`sim2real.deploy.export.lerobot_act`) into an ONNX file of action chunks that
-:class:`~sim2real.deploy.policy.lerobot_policy.LeRobotChunkPolicy` runs beside the servo loop."""
+:class:`~sim2real.deploy.policy.lerobot_policy.LeRobotChunkPolicy` runs in the runtime beside
+the servo loop."""
 
 from sim2real.deploy.core.stacks import Absent, Stack, register_stack
 

@@ -233,6 +233,7 @@ def build_rig(
         ValueError, OSError: the operator's source does not open, an output does not open, a
             hook refuses its options.
     """
+    from sim2real.deploy.rig.chunk_hook import chunk_hook
     from sim2real.deploy.rig.hooks import registered_hooks
     from sim2real.deploy.rig.motion_phase_hook import motion_phase_hook
     from sim2real.deploy.rig.rig import LatchedStopHook, MotionHook, Rig
@@ -258,6 +259,9 @@ def build_rig(
             task.update(task="tracking", motion=motion, motion_start_after=args.motion_start_after)
         rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
         rig.add(MotionHook(rig))
+        chunks = chunk_hook(rig)  # a chunked policy (LeRobot's): its cadence and jerk figures
+        if chunks is not None:
+            rig.add(chunks)
         phase = motion_phase_hook(rig)  # a phase-clocked policy: its motion's figures
         if phase is not None:
             rig.add(phase)

@@ -24,6 +24,18 @@ def contract_messages(policy) -> list[str]:
             f"deploy-run: note: {contract.format} policy: spec built from its {contract.source}"
         )
         out += [f"deploy-run: note: {contract.format} policy: {line}" for line in contract.missing]
+    lerobot = getattr(policy, "contract", None)
+    if lerobot is not None and hasattr(policy, "period"):  # a LeRobot export's chunks
+        scheme = (
+            f"temporal ensembling (coeff {lerobot.temporal_ensemble_coeff:g})"
+            if lerobot.temporal_ensemble_coeff is not None
+            else f"{lerobot.n_action_steps} of {lerobot.chunk_size} actions per chunk"
+        )
+        cams = ", ".join(f"'{b.camera}' {b.shape[0]}x{b.shape[1]} RGB" for b in policy.spec.images)
+        out.append(
+            f"deploy-run: note: LeRobot {lerobot.policy_type} policy at {1 / policy.period:g} Hz "
+            f"beside the servo loop, {scheme}; camera {cams or 'none'}"
+        )
     if any(b.name == "base_linear_velocity" for b in policy.spec.observation_blocks):
         terms = contract.base_velocity_terms() if contract is not None else []
         named = f" (term {', '.join(map(repr, terms))})" if terms else ""

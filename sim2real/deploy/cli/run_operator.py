@@ -84,7 +84,7 @@ def load_policies(files: dict[str, str], robot, spec=None) -> dict:
 
     policies, first = {}, None
     for name, path in files.items():
-        policy = OnnxPolicy(path, robot, spec=spec)
+        policy = _lerobot_policy(path, robot, spec) or OnnxPolicy(path, robot, spec=spec)
         driven, _ = drive_robot(robot, policy.spec)
         drive = (
             policy.spec.action.mode,
@@ -105,6 +105,35 @@ def load_policies(files: dict[str, str], robot, spec=None) -> dict:
                     )
         policies[name] = policy
     return policies
+
+
+def _lerobot_policy(path: str, robot, spec):
+    """A LeRobot export (its ``lerobot_contract`` metadata) as the runtime's chunked policy
+    (:class:`~sim2real.deploy.policy.lerobot_policy.LeRobotChunkPolicy`), or None for any other
+    file (the :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` reads it).
+
+    Raises:
+        ValueError: ``--spec`` given for a LeRobot export (its contract is its spec), or the
+            export refused for the robot (LeRobotFormatError, one line naming the file).
+    """
+    import onnx
+
+    from sim2real.deploy.spec.foreign import lerobot
+
+    try:
+        model = onnx.load(str(path), load_external_data=False)
+    except Exception:  # noqa: BLE001 - not a readable ONNX file: OnnxPolicy says why in one line
+        return None
+    if not lerobot.detect_onnx({p.key: p.value for p in model.metadata_props}):
+        return None
+    if spec is not None:
+        raise ValueError(
+            f"{path}: a LeRobot export carries its own contract ('{lerobot.METADATA_KEY}'); "
+            "expected no --spec"
+        )
+    from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
+
+    return LeRobotChunkPolicy(path, robot)
 
 
 def operator_mapping(args):

@@ -32,6 +32,7 @@ def print_summary(r: dict) -> None:
     _print_estimation(r)
     _print_violations(r)
     _print_interventions(r)
+    _print_chunks(r.get("chunks"))
     _print_faults(r)
     _print_bus(r)
     _print_ros2(r)
@@ -39,6 +40,42 @@ def print_summary(r: dict) -> None:
     _print_temperatures_and_motion(r)
     _print_costs_and_deadlines(r)
     _print_final_state(r)
+
+
+def _print_chunks(c: dict | None) -> None:
+    """A chunked policy's lines: its cadence and the peak joint jerk after a chunk boundary
+    against after a policy tick inside a chunk (medians of the peaks, rad/s^3), of the joints,
+    the guard's target (no smoother) and the smoothed command
+    (:class:`sim2real.deploy.rig.chunk_hook.ChunkHook`)."""
+    if not c:
+        return
+    scheme = (
+        f"temporal ensembling (coeff {c['temporal_ensemble_coeff']:g})"
+        if c["temporal_ensemble_coeff"] is not None
+        else f"{c['n_action_steps']} of {c['chunk_size']} actions per chunk"
+    )
+    print(
+        f"  chunks: policy at {c['policy_rate_hz']:g} Hz beside the {c['servo_rate_hz']:g} Hz "
+        f"servo loop, {scheme}; {c['policy_ticks']} policy ticks, {c['network_calls']} network "
+        f"calls; RUNNING: policy ticks per chunk {c['policy_ticks_per_chunk']}, servo ticks per "
+        f"policy tick {c['servo_ticks_per_policy_tick']}"
+    )
+    names = {
+        "position": f"joints ({c['joints']})",
+        "target": "target, no smoother",
+        "command": "command, smoothed",
+    }
+    for what, label in names.items():
+        f = c[what]
+        inside = (
+            "no policy tick inside a chunk"
+            if f["inside"] == 0
+            else f"inside a chunk {f['inside_median']:.3g} (max {f['inside_max']:.3g})"
+        )
+        print(
+            f"  chunk jerk, {label}: after a boundary {f['boundary_median']:.3g} (max "
+            f"{f['boundary_max']:.3g}) rad/s^3 over {f['boundaries']} boundaries; {inside}"
+        )
 
 
 def _print_task(r: dict) -> None:

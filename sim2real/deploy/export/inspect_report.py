@@ -173,9 +173,7 @@ def format_report(info: Mapping[str, Any]) -> str:
             lines.append("    json: " + json.dumps(spec["json"], sort_keys=True))
     elif info.get("lerobot"):
         lines += [f"  {line}" for line in info["lerobot"]]
-        lines.append(
-            "  run it beside the servo loop: python -m sim2real.eval.lerobot.action_chunks FILE"
-        )
+        lines.append("  run it beside the servo loop: deploy-run --robot so101 --policy FILE")
     elif info.get("foreign"):
         from sim2real.deploy.spec.foreign.report import format_lines
 

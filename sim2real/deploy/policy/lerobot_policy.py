@@ -1,8 +1,35 @@
-"""An exported LeRobot policy run beside a faster servo loop (:class:`LeRobotChunkPolicy`): the
-ONNX graph of :mod:`sim2real.deploy.export.lerobot_act` called once per chunk (the action queue)
-or once per policy tick (temporal ensembling), one action per policy tick at the contract's
-``fps``, held between policy ticks as the servo loop's joint target; and the robot's joints in
-LeRobot's units (:data:`LEROBOT_UNITS`).
+"""An exported LeRobot policy as a policy of the runtime (:class:`LeRobotChunkPolicy`): the ONNX
+graph of :mod:`sim2real.deploy.export.lerobot_act` at its own rate (the contract's ``fps``) beside
+the faster servo loop, its action chunks executed by
+:class:`~sim2real.deploy.policy.action_chunks.ActionChunks`, and the robot's joints in LeRobot's
+units (:data:`LEROBOT_UNITS`).
+
+The runtime calls a policy once per control tick (the servo loop's rate, ``Robot.control_period``);
+this one is a policy whose rate is below it. Its own tick (a *policy tick*) comes every ``1 / fps``
+s of the servo loop's time (30 Hz beside 100 Hz: a policy tick every 3 or 4 servo ticks, on
+average every 3.33); between policy ticks it returns the action of the last one again, and the
+runtime takes that held target through the guard and the smoother on every servo tick as it does
+any policy's. At a policy tick the graph is called when a chunk is needed (the action queue: every
+``n_action_steps`` policy ticks; temporal ensembling: every policy tick). The runtime's
+``reset(envs)`` (the start, the end of RAMP_IN, a resume) starts the envs' chunks afresh: the
+first RUNNING tick is a policy tick with a new chunk, so the policy sees the robot at home, not a
+queue filled during the ramp. The state (each env's queue or ensemble, the time to its next policy
+tick, the held action) is the stage's (:meth:`state_dict` / :meth:`load_state_dict`).
+
+Observation: the spec (:attr:`LeRobotChunkPolicy.spec`) is the robot's standard one over
+``joint_position`` (and ``goal_position`` when the policy reads an
+``observation.environment_state`` of 3 entries: the goal, m, in the base frame, as
+:mod:`sim2real.eval.lerobot.dataset` writes it); this class reads the joints and the goal back out
+of that vector exactly (its blocks' offset and scale) and converts them to LeRobot's units. Each
+camera key ``observation.images.<name>`` is an :class:`~sim2real.deploy.spec.camera.RgbImageBlock`
+of the MJCF camera or ``--camera-source`` named ``<name>``: a uint8 RGB frame of the contract's
+(H, W), one frame, ``CHW``, ``x / 255`` (lerobot's ``prepare_observation_for_inference``); the
+runtime's camera stage writes it into :attr:`images` and stops a stale camera (``stale_sensor``)
+as any sensor. The runtime reads one camera: an export with two is refused.
+
+Action: the graph's action (LeRobot's units) converted to joint targets, rad, returned as the
+spec's absolute position action (``(target - offset) / scale``, clipped to the soft range as any
+policy's full action; the guard clamps at the soft limits anyway).
 
 Units: lerobot 0.4.4's SO-100/SO-101 follower (``lerobot/robots/so_follower/so_follower.py``
 lines 51-60, ``config_so_follower.py`` line 43 ``use_degrees: bool = True``) reads and writes the
@@ -14,12 +41,14 @@ joint: a real arm's calibration must put those where they are in the MJCF.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.policy.action_chunks import ActionChunks
+from sim2real.deploy.spec.camera import RgbImageBlock
 from sim2real.deploy.spec.foreign import lerobot as lr
 
 #: Per robot, LeRobot's unit of each joint in our joint order: ``deg`` (degrees) or ``range_0_100``
@@ -27,10 +56,46 @@ from sim2real.deploy.spec.foreign import lerobot as lr
 LEROBOT_UNITS: dict[str, tuple[str, ...]] = {
     "so101": ("deg", "deg", "deg", "deg", "deg", "range_0_100"),
 }
+#: The prefix of a LeRobot camera key; the rest is the camera's name (lerobot's
+#: ``OBS_IMAGES`` in ``lerobot/utils/constants.py``).
+IMAGE_PREFIX = "observation.images."
+
+
+def camera_blocks(contract: lr.LeRobotContract, where: str) -> tuple[RgbImageBlock, ...]:
+    """The contract's camera keys as RGB image blocks (module docstring): input the key, camera
+    the key's last part, shape and resize the contract's (H, W), rate its fps.
+
+    Raises:
+        lr.LeRobotFormatError: more than one camera (the runtime reads one), a key without the
+            ``observation.images.`` prefix, a shape that is not (3, H, W).
+    """
+    if len(contract.cameras) > 1:
+        keys = [k for k, _ in contract.cameras]
+        raise lr.LeRobotFormatError(
+            f"{where}: {len(keys)} cameras {keys}; the runtime reads one camera per policy"
+        )
+    blocks = []
+    for key, shape in contract.cameras:
+        if not key.startswith(IMAGE_PREFIX) or len(key) == len(IMAGE_PREFIX):
+            raise lr.LeRobotFormatError(
+                f"{where}: camera key {key!r}; expected {IMAGE_PREFIX}<name>"
+            )
+        if len(shape) != 3 or shape[0] != 3:
+            raise lr.LeRobotFormatError(
+                f"{where}: camera {key} of shape {list(shape)}; expected [3, H, W]"
+            )
+        hw = (int(shape[1]), int(shape[2]))
+        blocks.append(
+            RgbImageBlock(
+                input=key, camera=key[len(IMAGE_PREFIX) :], shape=hw, resize=hw,
+                rate=float(contract.fps),
+            )
+        )  # fmt: skip
+    return tuple(blocks)
 
 
 class LeRobotChunkPolicy:
-    """A LeRobot export driving one robot's joint targets (module docstring).
+    """A LeRobot export as the runtime's policy of one robot (module docstring).
 
     Args:
         path: The ONNX file ``policy-export FOLDER`` wrote (its ``lerobot_contract`` metadata).
@@ -39,19 +104,28 @@ class LeRobotChunkPolicy:
 
     Attributes:
         contract: The file's :class:`~sim2real.deploy.spec.foreign.lerobot.LeRobotContract`.
-        chunks: The :class:`~sim2real.deploy.policy.action_chunks.ActionChunks` executor.
-        period: s, one policy tick (``1 / fps``).
-        target: (n,) rad, the joint target of the last policy tick (None before the first).
-        policy_ticks: Policy ticks so far. boundaries: Policy tick indices at which a new chunk
-            was taken (the queue scheme; every tick with ensembling).
+        spec: The runtime's :class:`~sim2real.deploy.spec.policy_spec.PolicySpec` (module
+            docstring); its ``control_rate`` is the servo loop's, at which the runtime calls it.
+        period: s, one policy tick (``1 / fps``). dt: s, the servo period.
+        images: {camera key: float32 (envs, 1, 3, H, W)}, written by the runtime's camera stage.
+        chunks: One :class:`~sim2real.deploy.policy.action_chunks.ActionChunks` per env.
+        new_chunk: (envs,) bool, the last call took a new chunk (a network call) in that env.
+        policy_tick: (envs,) bool, the last call was a policy tick in that env.
+        policy_ticks, calls: (envs,) int64, policy ticks and network calls so far.
 
     Raises:
-        lr.LeRobotFormatError: the file has no contract, no fps, or the robot does not fit.
+        lr.LeRobotFormatError: the file has no contract or no fps, the robot does not fit (no
+            LeRobot units, another joint count), an environment state that is not the goal's 3
+            entries, more than one camera, a camera key or shape refused (one line naming the
+            file).
     """
 
     def __init__(self, path: str | Path, robot):
         import onnxruntime as ort
 
+        from sim2real.deploy.spec.policy_spec import PolicySpec
+
+        self.path = str(path)
         self.contract = c = lr.read_onnx(path)
         units = LEROBOT_UNITS.get(robot.name)
         if units is None:
@@ -66,23 +140,63 @@ class LeRobotChunkPolicy:
             )
         if c.fps is None:
             raise lr.LeRobotFormatError(f"{path}: the contract has no fps")
+        if c.env_state_dim not in (0, 3):
+            raise lr.LeRobotFormatError(
+                f"{path}: {lr.ENV_STATE_KEY} of {c.env_state_dim} entries; the runtime feeds "
+                "it the goal (3 entries, m, base frame) or nothing"
+            )
+        blocks = ("joint_position", "goal_position") if c.env_state_dim else ("joint_position",)
+        spec = PolicySpec.for_robot(robot, blocks=blocks, mode="position")
+        self.spec = replace(spec, images=camera_blocks(c, str(path)))
+        self.spec.validate()
         self.units = np.array([u == "deg" for u in units])
         self.lower = np.asarray(robot.position_lower, float)
         self.upper = np.asarray(robot.position_upper, float)
         self.session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-        self.chunks = ActionChunks(c.chunk_size, c.n_action_steps, c.temporal_ensemble_coeff)
-        self.period = 1.0 / c.fps
-        self.policy_ticks = 0
-        self.boundaries: list[int] = []
-        self.reset()
+        self.period = 1.0 / float(c.fps)
+        self.dt = float(robot.control_period)
+        self.n = robot.n_joints
+        a = self.spec.action
+        self._offset, self._scale = np.asarray(a.offset), np.asarray(a.scale)
+        self._clip = float(a.clip)
+        self._bind(1)
 
-    def reset(self) -> None:
-        """An episode's start: no queued action, the next :meth:`step` is a policy tick (and a
-        network call). The counters (``policy_ticks``, ``boundaries``) run on."""
-        self.chunks.reset()
-        self.target: np.ndarray | None = None
-        self._next = None
+    # ------------------------------------------------------------------ batch
+    def _bind(self, envs: int) -> None:
+        self.envs = envs
+        self.images = {
+            b.input: np.zeros((envs, *b.input_shape), np.float32) for b in self.spec.images
+        }
+        c = self.contract
+        self.chunks = [
+            ActionChunks(c.chunk_size, c.n_action_steps, c.temporal_ensemble_coeff)
+            for _ in range(envs)
+        ]
+        self._out = np.zeros((envs, self.n), np.float32)  # the held actions, in [-1, 1]
+        self._wait = np.zeros(envs)  # s to each env's next policy tick (<= 0: this call)
+        self.new_chunk = np.zeros(envs, dtype=bool)
+        self.policy_tick = np.zeros(envs, dtype=bool)
+        self.policy_ticks = np.zeros(envs, dtype=np.int64)
+        self.calls = np.zeros(envs, dtype=np.int64)
 
+    def bind_batch(self, envs: int) -> None:
+        """Arrays for ``envs`` robots (the runtime's camera stage calls it before its first
+        write into :attr:`images`); a new batch size starts every env afresh."""
+        if envs != self.envs:
+            self._bind(envs)
+
+    def reset(self, envs: np.ndarray | None = None) -> None:
+        """An episode's start in the envs of ``envs`` (bool mask; None: all): no queued action,
+        their next call is a policy tick with a new chunk (module docstring). The counters run
+        on."""
+        if envs is not None:
+            self.bind_batch(len(envs))  # the runtime's batch (its start resets every env)
+        mask = np.ones(self.envs, bool) if envs is None else np.asarray(envs, dtype=bool)
+        for e in np.flatnonzero(mask):
+            self.chunks[e].reset()
+        self._wait[mask] = 0.0
+
+    # ------------------------------------------------------------------ units
     def to_lerobot(self, q: np.ndarray) -> np.ndarray:
         """(n,) rad -> LeRobot's state (degrees, gripper percent), float32."""
         pct = (q - self.lower) / (self.upper - self.lower) * 100.0
@@ -94,42 +208,117 @@ class LeRobotChunkPolicy:
         rad = self.lower + a / 100.0 * (self.upper - self.lower)
         return np.where(self.units, np.deg2rad(a), rad)
 
-    def step(
-        self,
-        t: float,
-        q: np.ndarray,
-        frames: Mapping[str, np.ndarray],
-        env_state: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """The joint target (n,) rad at time ``t`` s of the servo loop: a new action when a policy
-        period has passed since the last (the graph called when a chunk is needed, with the
-        state ``q`` rad, ``frames``: per camera key a float32 ``(3, H, W)`` image in ``[0, 1]``,
-        RGB, and ``env_state``, the policy's ``observation.environment_state`` if it has one),
-        else the last one held."""
-        if self._next is not None and t < self._next - 1e-9:
-            return self.target
-        self._next = t + self.period if self._next is None else self._next + self.period
-        calls = self.chunks.calls
+    def _read(self, obs_row: np.ndarray) -> dict[str, np.ndarray]:
+        """One env's observation (the spec's blocks) back to ``{"joint_position", "goal_position"}``
+        in rad and m (``value * scale + offset``)."""
+        out, i = {}, 0
+        for b in self.spec.observation_blocks:
+            v = obs_row[i : i + b.size].astype(np.float64)
+            out[b.name] = v * np.asarray(b.scale) + np.asarray(b.offset)
+            i += b.size
+        return out
 
-        def predict():
-            feed = {lr.STATE_KEY: self.to_lerobot(q)[None]}
+    # ------------------------------------------------------------------ the call
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """(envs, obs_dim) float32 -> (envs, n) float32 actions in [-1, 1], one servo tick:
+        a new action where a policy period has passed (the graph called when a chunk is
+        needed), else the held one; in a buffer the next call overwrites.
+
+        Raises:
+            ValueError: a chunk of another shape than the contract's.
+        """
+        envs = obs.shape[0]
+        self.bind_batch(envs)
+        due = self._wait <= 1e-9
+        np.copyto(self.policy_tick, due)
+        self.new_chunk[:] = False
+        for e in np.flatnonzero(due):
+            self._policy_tick(e, obs[e])
+        self._wait[due] += self.period
+        self._wait -= self.dt
+        return self._out
+
+    def _policy_tick(self, e: int, obs_row: np.ndarray) -> None:
+        chunks, calls = self.chunks[e], self.chunks[e].calls
+        values = self._read(obs_row)
+
+        def predict() -> np.ndarray:
+            feed = {lr.STATE_KEY: self.to_lerobot(values["joint_position"])[None]}
             if self.contract.env_state_dim:
-                es = np.asarray(env_state, dtype=np.float32).reshape(1, -1)
-                if es.shape[1] != self.contract.env_state_dim:
-                    raise ValueError(
-                        f"{lr.ENV_STATE_KEY}: {es.shape[1]} entries, expected "
-                        f"{self.contract.env_state_dim}"
-                    )
-                feed[lr.ENV_STATE_KEY] = es
-            for key, shape in self.contract.cameras:
-                img = np.asarray(frames[key], dtype=np.float32)
-                if img.shape != shape:
-                    raise ValueError(f"camera {key}: frame of shape {img.shape}, expected {shape}")
-                feed[key] = img[None]
+                feed[lr.ENV_STATE_KEY] = values["goal_position"].astype(np.float32)[None]
+            for key, image in self.images.items():
+                feed[key] = image[e]  # (1, 3, H, W): the block's one frame is the batch axis
             return self.session.run(None, feed)[0]
 
-        self.target = self.to_joints(self.chunks.step(predict))
-        if self.chunks.calls != calls:
-            self.boundaries.append(self.policy_ticks)
-        self.policy_ticks += 1
-        return self.target
+        target = self.to_joints(chunks.step(predict))
+        action = (target - self._offset) / self._scale
+        self._out[e] = np.clip(action, -self._clip, self._clip)
+        self.policy_ticks[e] += 1
+        if chunks.calls != calls:
+            self.new_chunk[e] = True
+            self.calls[e] += 1
+
+    # ------------------------------------------------------------------ state
+    def _packed(self) -> dict:
+        """Each env's :class:`ActionChunks` state as arrays with a leading env axis: ``queue``
+        (envs, n_action_steps, n) and ``queue_len``; ``ens`` (envs, chunk_size, n) and
+        ``ens_len`` (-1: no ensemble yet), ``count`` (envs, chunk_size); ``chunk_calls``."""
+        c, envs, n = self.contract, self.envs, self.contract.action_dim
+        out = {
+            "queue": np.zeros((envs, c.n_action_steps, n), np.float32),
+            "queue_len": np.zeros(envs, np.int64),
+            "ens": np.zeros((envs, c.chunk_size, n), np.float32),
+            "ens_len": np.full(envs, -1, np.int64),
+            "count": np.zeros((envs, c.chunk_size), np.int64),
+            "chunk_calls": np.zeros(envs, np.int64),
+        }
+        for e, ch in enumerate(self.chunks):
+            st = ch.state_dict()
+            out["queue_len"][e] = len(st["queue"])
+            if st["queue"]:
+                out["queue"][e, : len(st["queue"])] = np.stack(st["queue"])
+            if st["ens"] is not None:
+                k = len(st["ens"])
+                out["ens"][e, :k], out["count"][e, :k], out["ens_len"][e] = (
+                    st["ens"],
+                    st["count"],
+                    k,
+                )
+            out["chunk_calls"][e] = st["calls"]
+        return out
+
+    def _fields(self) -> dict:
+        return {
+            "out": self._out,
+            "wait": self._wait,
+            "policy_ticks": self.policy_ticks,
+            "calls": self.calls,
+        }
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """Each env's queue or ensemble (:meth:`_packed`), the time to its next policy tick
+        (``wait``, s), the held action (``out``) and the counters (copies with a leading env
+        axis; ``env``: that env's only)."""
+        return take(self._fields() | self._packed(), env)
+
+    def load_state_dict(self, state: dict, env: int | None = None) -> None:
+        """Restore :meth:`state_dict`'s output (of all envs, or into ``env``).
+
+        Raises:
+            StateDictError: a missing field or another shape (nothing written)."""
+        if env is None and "wait" in state:  # a batch's state: its size
+            self.bind_batch(len(np.asarray(state["wait"])))
+        packed = self._packed()
+        fields = self._fields() | packed
+        put(fields, state, env)  # checks every field before writing
+        envs = range(self.envs) if env is None else [env]
+        for e in envs:
+            k, q = int(packed["ens_len"][e]), int(packed["queue_len"][e])
+            self.chunks[e].load_state_dict(
+                {
+                    "queue": list(packed["queue"][e, :q]),
+                    "ens": None if k < 0 else packed["ens"][e, :k],
+                    "count": None if k < 0 else packed["count"][e, :k],
+                    "calls": int(packed["chunk_calls"][e]),
+                }
+            )

@@ -93,9 +93,9 @@ def resolve_spec(
 
         if lerobot.detect_onnx({p.key: p.value for p in model.metadata_props}):
             raise PolicyLoadError(
-                f"{path}: a LeRobot export (metadata '{lerobot.METADATA_KEY}'): the runtime does "
-                "not run action-chunk policies yet; run it on the plant with `python -m "
-                f"sim2real.eval.lerobot.action_chunks {path}`"
+                f"{path}: a LeRobot export (metadata '{lerobot.METADATA_KEY}'): its chunks run "
+                "through LeRobotChunkPolicy (sim2real.deploy.policy.lerobot_policy), as "
+                f"`deploy-run --policy {path}` loads it"
             )
         raise PolicyLoadError(
             f"{path}: no '{METADATA_SPEC}' metadata (not written by policy-export) and no "

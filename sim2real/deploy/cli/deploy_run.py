@@ -259,12 +259,10 @@ def build_rig(
             task.update(task="tracking", motion=motion, motion_start_after=args.motion_start_after)
         rig = Rig(robot, policy, backend, envs=args.envs, task=task, runtime=runtime)
         rig.add(MotionHook(rig))
-        chunks = chunk_hook(rig)  # a chunked policy (LeRobot's): its cadence and jerk figures
-        if chunks is not None:
-            rig.add(chunks)
-        phase = motion_phase_hook(rig)  # a phase-clocked policy: its motion's figures
-        if phase is not None:
-            rig.add(phase)
+        # a chunked policy (LeRobot's): its cadence and jerk; a phase-clocked one: its motion's
+        for hook in (chunk_hook(rig), motion_phase_hook(rig)):
+            if hook is not None:
+                rig.add(hook)
         if after is not None:  # the hand-over at the clip's end
             from sim2real.deploy.rig.after_clip import AfterClipHook
 

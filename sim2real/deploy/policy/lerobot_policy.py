@@ -16,27 +16,7 @@ first RUNNING tick is a policy tick with a new chunk, so the policy sees the rob
 queue filled during the ramp. The state (each env's queue or ensemble, the time to its next policy
 tick, the held action) is the stage's (:meth:`state_dict` / :meth:`load_state_dict`).
 
-Observation: the spec (:attr:`LeRobotChunkPolicy.spec`) is the robot's standard one over
-``joint_position`` (and ``goal_position`` when the policy reads an
-``observation.environment_state`` of 3 entries: the goal, m, in the base frame, as
-:mod:`sim2real.eval.lerobot.dataset` writes it); this class reads the joints and the goal back out
-of that vector exactly (its blocks' offset and scale) and converts them to LeRobot's units. Each
-camera key ``observation.images.<name>`` is an :class:`~sim2real.deploy.spec.camera.RgbImageBlock`
-of the MJCF camera or ``--camera-source`` named ``<name>``: a uint8 RGB frame of the contract's
-(H, W), one frame, ``CHW``, ``x / 255`` (lerobot's ``prepare_observation_for_inference``); the
-runtime's camera stage writes it into :attr:`images` and stops a stale camera (``stale_sensor``)
-as any sensor. The runtime reads one camera: an export with two is refused.
-
-Action: the graph's action (LeRobot's units) converted to joint targets, rad, returned as the
-spec's absolute position action (``(target - offset) / scale``, clipped to the soft range as any
-policy's full action; the guard clamps at the soft limits anyway).
-
-Units: lerobot 0.4.4's SO-100/SO-101 follower (``lerobot/robots/so_follower/so_follower.py``
-lines 51-60, ``config_so_follower.py`` line 43 ``use_degrees: bool = True``) reads and writes the
-five arm joints in degrees (``MotorNormMode.DEGREES``: 0 at the middle of the calibrated range) and
-the gripper in percent of its calibrated range (``MotorNormMode.RANGE_0_100``). Here degrees are
-about the MJCF's zero, and the gripper's calibrated range is the MJCF's hard limits of the gripper
-joint: a real arm's calibration must put those where they are in the MJCF.
+Observation, action and units: :class:`LeRobotChunkPolicy`.
 """
 
 from __future__ import annotations
@@ -62,7 +42,7 @@ IMAGE_PREFIX = "observation.images."
 
 
 def camera_blocks(contract: lr.LeRobotContract, where: str) -> tuple[RgbImageBlock, ...]:
-    """The contract's camera keys as RGB image blocks (module docstring): input the key, camera
+    """The contract's camera keys as RGB image blocks (:class:`LeRobotChunkPolicy`): input the key, camera
     the key's last part, shape and resize the contract's (H, W), rate its fps.
 
     Raises:
@@ -97,6 +77,28 @@ def camera_blocks(contract: lr.LeRobotContract, where: str) -> tuple[RgbImageBlo
 class LeRobotChunkPolicy:
     """A LeRobot export as the runtime's policy of one robot (module docstring).
 
+    Observation: the spec (:attr:`LeRobotChunkPolicy.spec`) is the robot's standard one over
+    ``joint_position`` (and ``goal_position`` when the policy reads an
+    ``observation.environment_state`` of 3 entries: the goal, m, in the base frame, as
+    :mod:`sim2real.eval.lerobot.dataset` writes it); this class reads the joints and the goal back out
+    of that vector exactly (its blocks' offset and scale) and converts them to LeRobot's units. Each
+    camera key ``observation.images.<name>`` is an :class:`~sim2real.deploy.spec.camera.RgbImageBlock`
+    of the MJCF camera or ``--camera-source`` named ``<name>``: a uint8 RGB frame of the contract's
+    (H, W), one frame, ``CHW``, ``x / 255`` (lerobot's ``prepare_observation_for_inference``); the
+    runtime's camera stage writes it into :attr:`images` and stops a stale camera (``stale_sensor``)
+    as any sensor. The runtime reads one camera: an export with two is refused.
+
+    Action: the graph's action (LeRobot's units) converted to joint targets, rad, returned as the
+    spec's absolute position action (``(target - offset) / scale``, clipped to the soft range as any
+    policy's full action; the guard clamps at the soft limits anyway).
+
+    Units: lerobot 0.4.4's SO-100/SO-101 follower (``lerobot/robots/so_follower/so_follower.py``
+    lines 51-60, ``config_so_follower.py`` line 43 ``use_degrees: bool = True``) reads and writes the
+    five arm joints in degrees (``MotorNormMode.DEGREES``: 0 at the middle of the calibrated range) and
+    the gripper in percent of its calibrated range (``MotorNormMode.RANGE_0_100``). Here degrees are
+    about the MJCF's zero, and the gripper's calibrated range is the MJCF's hard limits of the gripper
+    joint: a real arm's calibration must put those where they are in the MJCF.
+
     Args:
         path: The ONNX file ``policy-export FOLDER`` wrote (its ``lerobot_contract`` metadata).
         robot: Our robot description; its name must be in :data:`LEROBOT_UNITS` and its joints
@@ -104,8 +106,8 @@ class LeRobotChunkPolicy:
 
     Attributes:
         contract: The file's :class:`~sim2real.deploy.spec.foreign.lerobot.LeRobotContract`.
-        spec: The runtime's :class:`~sim2real.deploy.spec.policy_spec.PolicySpec` (module
-            docstring); its ``control_rate`` is the servo loop's, at which the runtime calls it.
+        spec: The runtime's :class:`~sim2real.deploy.spec.policy_spec.PolicySpec` (above);
+            its ``control_rate`` is the servo loop's, at which the runtime calls it.
         period: s, one policy tick (``1 / fps``). dt: s, the servo period.
         images: {camera key: float32 (envs, 1, 3, H, W)}, written by the runtime's camera stage.
         chunks: One :class:`~sim2real.deploy.policy.action_chunks.ActionChunks` per env.

@@ -19,9 +19,9 @@ from sim2real.eval.soak.own_loop_limits import (
     judge_hard_limits,
     judge_interventions,
     own_loop_reference,
-    rl_sar_folder,
 )
 from sim2real.eval.soak.session import SessionConfig
+from sim2real.stacks.loops.rl_sar_pushed import rl_sar_folder
 
 OWN = {
     "compared": True,
@@ -139,7 +139,7 @@ def test_a_policy_with_no_own_loop_is_not_compared(tmp_path):
     onnx.write_bytes(b"")
     t = SessionConfig(robot="go2", policy=str(onnx), seed=0, hours=0.1)
     own = own_loop_reference(t, 3)
-    assert not own["compared"] and "no rl_sar whole_body_tracking folder" in own["why"]
+    assert not own["compared"] and "no stack's own tracking loop plays it" in own["why"]
     assert "another clip" in own_loop_reference(SessionConfig(
         robot="go2", policy=str(onnx), seed=0, hours=0.1, motion="x.csv"), 3)["why"]  # fmt: skip
     assert own_loop_reference(t, 0)["why"] == "--own-loop-plays 0"

@@ -8,7 +8,9 @@ end is :mod:`sim2real.deploy.cli.run_summary`'s.
 ====  =====================================================================================
 0     clean: no hard violation, no latched fault
 1     a hard-limit violation: the true joint position (simulation) crossed a hard limit, or the
-      guard found the estimate beyond one (a safe stop)
+      guard found the estimate beyond one (a safe stop); a tracking run's hard-limit and
+      self-collision ticks only past what its own loop allows
+      (:mod:`sim2real.deploy.cli.own_loop_check`)
 2     a latched fault: some env ended FAULTED (or in a safe stop) after a fault of the table
 3     bad input: unreadable robot, policy or spec, mismatching contract, bad option; a servo bus
       that does not come up (port, missing servo, wrong model number, calibration); a Unitree
@@ -46,6 +48,7 @@ from sim2real.deploy.cli.exteroception import (
     close_camera,
     show_goal,
 )
+from sim2real.deploy.cli.own_loop_check import own_loop_verdict
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
 from sim2real.deploy.cli.run_operator import (
@@ -334,6 +337,7 @@ def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
     report["start_s"] = start_s  # of wall_s: paid once, not per tick
     report["realtime_settings"] = settings.summary()
     report["diverged"] = diverged
+    report["own_loop"] = own_loop_verdict(args, rig, report)
     report["exit_code"] = exit_code(report, rig)
     print_summary(report)
     if args.report:
@@ -418,7 +422,8 @@ def fault_report(rig, injector) -> dict:
 
 def exit_code(report: dict, rig) -> int:
     """The exit code of a run's ``report`` (module docstring); sets ``report["hard_violations"]``
-    (true-state ticks by type, lying down included)."""
+    (true-state ticks by type, lying down included, that fail the run) and
+    ``report["within_own_loop"]`` (those its own loop allows: ``report["own_loop"]``)."""
     from sim2real.deploy.monitors.violations import HARD_VIOLATION_TYPES
 
     v = report["violations"]
@@ -429,6 +434,12 @@ def exit_code(report: dict, rig) -> int:
         for k in HARD_VIOLATION_TYPES
         if true.get(k, 0) + down.get(k, 0)
     }
+    judged = report.get("own_loop") or {}
+    allowed = {
+        k for k, f in (judged.get("verdict") or {}).items() if f["passed"] and not down.get(k)
+    }
+    report["within_own_loop"] = {k: n for k, n in hard.items() if k in allowed}
+    hard = {k: n for k, n in hard.items() if k not in allowed}
     report["hard_violations"] = hard
     if report["diverged"]:
         return EXIT_DIVERGED

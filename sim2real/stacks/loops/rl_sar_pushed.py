@@ -2,7 +2,8 @@
 folder's clip as rl_sar's own MuJoCo loop plays it (:mod:`sim2real.stacks.loops.rl_sar_tracking`,
 :mod:`sim2real.stacks.loops.rl_sar_motion`) on a bare plant (:mod:`sim2real.stacks.loops.bare`),
 pushed by the soak's schedule. The tracking push benchmark (``bench/push_tracking.py``) and the
-soak's own-loop reference of a dance (:mod:`sim2real.eval.soak.own_loop_limits`) run it.
+soak's own-loop reference of a dance (:mod:`sim2real.eval.soak.own_loop_limits`) run it: the
+``rl_sar`` stack's ``tracking_loop`` face (:data:`TRACKING_LOOP`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.backends.sim.disturbances import SimDisturbances
+from sim2real.deploy.core.stacks import TrackingLoop
 from sim2real.eval.world.pushes import DomainPushes
 from sim2real.stacks.loops.bare import Run, bare_plant, past_hard_limit, true_fall
 from sim2real.stacks.loops.rl_sar_motion import RlSarMotion, rl_sar_params
@@ -94,3 +96,24 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=N
     run.walked *= period
     run.pushes = [t - period for t in schedule.times[0]] if schedule else []  # the frame's time
     return run
+
+
+def rl_sar_folder(policy: str | Path) -> Path | None:
+    """The rl_sar ``whole_body_tracking`` folder the ONNX ``policy`` sits in (``config.yaml``,
+    its TorchScript ``policy.pt`` and ``base.yaml`` two levels up, as rl_sar lays
+    ``policy/<robot>/whole_body_tracking/<name>``), or None."""
+    folder = Path(policy).resolve().parent
+    if folder.parent.name != "whole_body_tracking":
+        return None
+    if not (folder / "config.yaml").is_file() or not (folder / "policy.pt").is_file():
+        return None
+    return folder if (folder.parent.parent / "base.yaml").is_file() else None
+
+
+#: The ``rl_sar`` stack's ``tracking_loop`` face.
+TRACKING_LOOP = TrackingLoop(
+    what="rl_sar whole_body_tracking (the TorchScript policy.pt on the true state, its "
+    "rl_kp/rl_kd; no estimator, guard or noise)",
+    folder=rl_sar_folder,
+    play=rl_sar_loop,
+)

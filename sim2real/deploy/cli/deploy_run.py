@@ -117,7 +117,10 @@ def run(args) -> int:
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
     attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
-    attach_camera(args, backend, policy.spec)  # an image input: the plant's MJCF camera
+    # an image input: the plant's MJCF camera, for the first policy that reads one (the camera
+    # goes with a switch of policy: Runtime.switch_policy)
+    seeing = [p.spec for p in policies.values() if getattr(p.spec, "images", ())]
+    attach_camera(args, backend, seeing[0] if seeing else policy.spec)
     check_drive_applied(drive, simulated or getattr(backend, "commands_gains", False), args.backend)
     for line in drive.values():
         print(

@@ -307,9 +307,10 @@ def play(robot, folder, seed: int, seconds: float | None, pushes, watch=None):
     return run
 
 
-#: s the home pose is held at the dance's default angles before it starts in :func:`play` (our
-#: choice: the rl_sar tracking loop's settle, ``rl_sar_pushed.SETTLE``).
-SETTLE = 1.0
+#: s the dance's default angles are held before it starts in :func:`play`: :func:`run`'s
+#: ``--settle`` default (held longer by its weak ankle gains, 20 N m/rad, the G1 tips forward:
+#: 27 deg after 0.8 s on unitree_mujoco's g1_29dof.xml).
+SETTLE = 0.2
 
 
 #: The ``robomimic`` stack's ``tracking_loop`` face.

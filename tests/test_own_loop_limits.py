@@ -263,7 +263,7 @@ def test_deploy_runs_exit_code_fails_only_on_ticks_past_the_own_loops():
     are listed as within it); past it, or lying down after a stop, they do (exit 1)."""
     from types import SimpleNamespace
 
-    from sim2real.deploy.cli.deploy_run import EXIT_CLEAN, EXIT_HARD_VIOLATION, exit_code
+    from sim2real.deploy.cli.run_verdict import EXIT_CLEAN, EXIT_HARD_VIOLATION, exit_code
 
     rig = SimpleNamespace(true_falls=lambda: 0)
 
@@ -328,3 +328,31 @@ def test_deploy_run_refuses_a_negative_own_loop_play_count_in_one_line(capsys):
     assert deploy_run_main(["--robot", "go2", "--own-loop-plays", "-1"]) == 3
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--own-loop-plays" in err[0] and "expected an integer >= 0" in err[0]
+
+
+def test_without_pushes_the_own_loops_plays_go_back_to_back(monkeypatch):
+    """No pushes: the own loop is deterministic from its rest, so its N plays are one call of N
+    plays back to back (the clip again where the last left the robot); with pushes, N plays from
+    rest, seeds seed .. seed + N - 1."""
+    from types import SimpleNamespace
+
+    from sim2real.deploy.core.stacks import TrackingLoop
+    from sim2real.eval.soak import own_loop_limits
+    from sim2real.robots import load_robot
+    from sim2real.stacks.loops.bare import Run
+
+    calls = []
+
+    def play(robot, folder, seed, seconds, pushes, watch, repeat=1):
+        calls.append((seed, repeat))
+        return Run(walked=35.0 * repeat)
+
+    loop = TrackingLoop("a made-up loop", lambda p: p, play)
+    monkeypatch.setattr(own_loop_limits, "own_tracking_loop", lambda p: ("made_up", loop, "f"))
+    robot = load_robot("go2")
+    own = own_loop_limits.play_reference(robot, "x.onnx", 3, seed=7)
+    assert calls == [(7, 3)] and own["clip_s"] == 105.0 and own["plays"] == 3
+    calls.clear()
+    pushes = SimpleNamespace(describe=lambda: "pushes")
+    own = own_loop_limits.play_reference(robot, "x.onnx", 3, seed=7, pushes=pushes)
+    assert calls == [(7, 1), (8, 1), (9, 1)] and own["clip_s"] == 105.0

@@ -69,12 +69,12 @@ class TrackingLoop:
         what: For messages: ``"rl_sar whole_body_tracking (the TorchScript policy.pt ...)"``.
         folder: ``(Path) -> Path | None``: the stack's policy folder a policy file (the ONNX
             export beside the stack's own file) sits in, None when it is not this loop's.
-        play: ``(robot, folder, seed, seconds, pushes, watch) -> Run``: one play of the
-            folder's motion on ``robot``'s bare plant (:mod:`sim2real.stacks.loops.bare`), at
-            most ``seconds`` s of it (None: all), under ``pushes`` (a
-            :class:`~sim2real.eval.world.pushes.PushRanges` or None) seeded by ``seed``;
-            ``watch(d, target)`` sees each tick's true ``mujoco.MjData`` and PD target (robot
-            order, rad) before the physics steps. ``Run.walked``: s of motion played.
+        play: ``(robot, folder, seed, seconds, pushes, watch, repeat=1) -> Run``: ``repeat``
+            plays back to back of the folder's motion on ``robot``'s bare plant
+            (:mod:`sim2real.stacks.loops.bare`), at most ``seconds`` s of it (None: all), under
+            ``pushes`` (a :class:`~sim2real.eval.world.pushes.PushRanges` or None) seeded by
+            ``seed``; ``watch(d, target)`` sees each tick's true ``mujoco.MjData`` and PD target
+            (robot order, rad) before the physics steps. ``Run.walked``: s of motion played.
     """
 
     what: str

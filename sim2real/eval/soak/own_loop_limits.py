@@ -3,14 +3,17 @@ loop on the same clip (the guard-replay method, ``bench/guard_replay.py``) befor
 blamed for them: rl_sar's G1 dances hold their ankle rolls at, or a few mrad past, their hard
 limits in their own loop, which has no guard.
 
-:func:`own_loop_reference` plays the clip ``plays`` times in the policy's own loop (rl_sar's
-whole_body_tracking loop, :func:`own_tracking_loop`) on the soak's robot under the soak's pushes
-(its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``; without pushes the loop is
-deterministic and plays once; no faults, randomization or sensor noise: the true state of the
-nominal robot), each play to the clip's end or its first fall, and counts per joint the ticks past
-a hard limit and, replaying a fresh :class:`~sim2real.deploy.safety.guard.SafetyGuard` (position
-mode) on each tick's true state and the policy's target (not applied), the ticks on which the
-guard would have changed it, per check.
+:func:`own_loop_reference` plays the clip ``plays`` times in the policy's own loop (the
+``tracking_loop`` face of the stack whose folder the policy sits in, :func:`own_tracking_loop`:
+rl_sar's whole_body_tracking loop, RoboMimic_Deploy's dance) on the soak's robot under the soak's
+pushes (its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``; without pushes the loop
+is deterministic from its rest, so the plays go back to back, each from where the last left the
+robot, as an exhibition plays its clip again; no faults, randomization or sensor noise: the true
+state of the nominal robot), each play to the clip's end or its first fall, and counts per joint
+the ticks past a hard limit, the ticks with a collision pair touching (``deploy-run``'s
+judgement, :mod:`sim2real.deploy.cli.own_loop_check`) and, replaying a fresh
+:class:`~sim2real.deploy.safety.guard.SafetyGuard` (position mode) on each tick's true state and
+the policy's target (not applied), the ticks on which the guard would have changed it, per check.
 
 The rule (:func:`judge_hard_limits`, :func:`judge_interventions`): a joint's own-loop rate (ticks
 past its hard limit per second of clip) times the seconds of clip the session played is its
@@ -22,8 +25,8 @@ hard-limit safe stop. Every tick up counts (clips, transitions, rests: rl_sar's 
 so a rest gets no allowance). ``interventions`` passes at most ``max_intervention_rate`` of the
 ticks, or at most ``(1 + MARGIN)`` times the share of the own loop's ticks the replayed guard
 would have changed (the checks the session judges; a guide, not a bound: states our runtime did
-not produce). Without an own loop here (no rl_sar ``whole_body_tracking`` folder beside the ONNX,
-or ``--motion`` another clip) a session is judged as before, and the report says why.
+not produce). Without an own loop here (no stack's tracking loop finds the ONNX's folder, or
+``--motion`` another clip) a session is judged as before, and the report says why.
 """
 
 from __future__ import annotations
@@ -66,8 +69,9 @@ def own_tracking_loop(policy: str | Path):
 def play_reference(robot, policy: str | Path, plays: int, seed: int = 0, pushes=None) -> dict:
     """The own loop's figures on ``policy``'s motion (module docstring), ``plays`` plays on
     ``robot`` (its drive applied: the run's robot), seeds ``seed`` .. ``seed + plays - 1``,
-    under ``pushes`` (a :class:`~sim2real.eval.world.pushes.PushRanges`; None: none, one play:
-    the loop is then deterministic).
+    under ``pushes`` (a :class:`~sim2real.eval.world.pushes.PushRanges`); without pushes
+    (None) the loop is deterministic from its rest: the ``plays`` plays go back to back, each
+    from where the last left the robot (rl_sar's ``Reset``, RoboMimic's ``Dance.enter``).
 
     Returns:
         ``{"compared": False, "why": str}`` where no stack's loop plays the policy; else
@@ -90,11 +94,12 @@ def play_reference(robot, policy: str | Path, plays: int, seed: int = 0, pushes=
         }
     stack, loop, folder = found
     replay = GuardReplay(robot)
-    if pushes is None:  # the loop is deterministic: every play would be the first
-        plays = 1
     falls, clip_s = 0, 0.0
-    for k in range(plays):
-        run = loop.play(robot, folder, seed + k, None, pushes, replay)
+    # without pushes a play from the same rest is the same play: the plays go back to back
+    # instead (the clip again where the last left the robot, as an exhibition repeats it)
+    for k in range(plays if pushes is not None else 1):
+        repeat = 1 if pushes is not None else plays
+        run = loop.play(robot, folder, seed + k, None, pushes, replay, repeat)
         falls += run.fell_at is not None
         clip_s += run.walked
     joints = replay.joint_ticks

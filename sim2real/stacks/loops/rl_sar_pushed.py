@@ -25,14 +25,18 @@ from sim2real.stacks.loops.walk import Walk
 SETTLE = 1.0
 
 
-def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=None) -> Run:
+def rl_sar_loop(
+    robot, folder, seed: int, seconds: float | None, pushes, watch=None, repeat: int = 1
+) -> Run:
     """One play of rl_sar ``folder``'s clip in rl_sar's loop (module docstring) on ``robot`` (its
     joints named as base.yaml's ``joint_names``), under ``pushes`` (a
     :class:`~sim2real.eval.world.pushes.PushRanges`; None: none), at most ``seconds`` s of clip
     (None: all of it). ``watch(d, target)`` (optional) sees each clip tick's true state (the
     ``mujoco.MjData`` the policy read) and the PD target (robot order, rad) the policy gave from
     it, before the physics steps (the soak's own-loop reference,
-    :mod:`sim2real.eval.soak.own_loop_limits`).
+    :mod:`sim2real.eval.soak.own_loop_limits`). ``repeat``: plays of the clip back to back, each
+    aligned by rl_sar's ``Reset`` to the robot as the last one left it (``seconds`` then caps
+    them all; ``Run.walked``: s of clip played in all).
 
     Raises:
         ValueError: a joint of base.yaml the robot lacks, or a control period not rl_sar's
@@ -69,14 +73,17 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=N
     motion.reset(d.qpos[3:7].copy(), d.qpos[qo:][ours][waist])
     net = load_policy(folder / params["model_name"])
     actions = np.zeros(len(ours), dtype=np.float32)
-    ticks = round(motion.duration / period)
+    clip = round(motion.duration / period)
+    ticks = clip * max(1, int(repeat))
     if seconds is not None:
         ticks = min(ticks, round(seconds / period))
     walk, run = Walk(), Run()
     schedule = DomainPushes([seed], pushes, period) if pushes else None
     bare = SimDisturbances(robot, [m], [d])
     for k in range(ticks):
-        motion.update(k * period)
+        if k and k % clip == 0:  # the clip again: Reset to where the last play left the robot
+            motion.reset(d.qpos[3:7].copy(), d.qpos[qo:][ours][waist])
+        motion.update((k % clip) * period)
         q, dq = d.qpos[qo:][ours], d.qvel[vo:][ours]
         obs = observation(params, motion, d.qpos[3:7], d.qvel[3:6], q, dq, actions)
         with torch.no_grad():

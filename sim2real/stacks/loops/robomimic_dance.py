@@ -247,15 +247,16 @@ def folder_dance(folder) -> tuple[dict, list[str], object]:
     return dance, joints, net
 
 
-def play(robot, folder, seed: int, seconds: float | None, pushes, watch=None):
+def play(robot, folder, seed: int, seconds: float | None, pushes, watch=None, repeat: int = 1):
     """One play of an rl_sar RoboMimic ``folder``'s dance by RoboMimic_Deploy's ``Dance`` (module
     docstring) on ``robot``'s bare plant (its ``plant_model("torque")``, the PD law of
     ``kps``/``kds`` at every physics step, the robot's own control period): the home pose held
     ``SETTLE`` s at the dance's default angles, then ``T / 0.02`` ticks, at most ``seconds`` s
     (None: all), under ``pushes`` (a :class:`~sim2real.eval.world.pushes.PushRanges`; None: none)
     seeded by ``seed``. ``watch(d, target)`` sees each tick's true state and the PD target
-    (robot order, rad) before the physics steps. Returns a
-    :class:`~sim2real.stacks.loops.bare.Run` (``walked``: s of the dance played).
+    (robot order, rad) before the physics steps. ``repeat``: plays back to back, the dance
+    entered again (``Dance.enter``) where the last left the robot. Returns a
+    :class:`~sim2real.stacks.loops.bare.Run` (``walked``: s of the dance played in all).
 
     Raises:
         ValueError: a joint of the folder the robot lacks, or no motion length.
@@ -281,13 +282,16 @@ def play(robot, folder, seed: int, seconds: float | None, pushes, watch=None):
     for _ in range(round(SETTLE / period)):
         plant.advance()
     dance.enter()
-    ticks = int(round(dance.motion_length / PHASE_STEP))
+    once = int(round(dance.motion_length / PHASE_STEP))
+    ticks = once * max(1, int(repeat))
     if seconds is not None:
         ticks = min(ticks, round(seconds / period))
     walk, run = Walk(), Run()
     schedule = DomainPushes([seed], pushes, period) if pushes else None
     disturb = SimDisturbances(robot, [plant.m], [d])
     for k in range(ticks):
+        if k and k % once == 0:
+            dance.enter()
         out = dance.run(d.qpos[qo:][ours].copy(), d.qvel[vo:][ours].copy(), d.qvel[3:6].copy(),
                         gravity_orientation(d.qpos[3:7]))  # fmt: skip
         target[ours] = out

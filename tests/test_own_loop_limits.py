@@ -356,3 +356,40 @@ def test_without_pushes_the_own_loops_plays_go_back_to_back(monkeypatch):
     pushes = SimpleNamespace(describe=lambda: "pushes")
     own = own_loop_limits.play_reference(robot, "x.onnx", 3, seed=7, pushes=pushes)
     assert calls == [(7, 1), (8, 1), (9, 1)] and own["clip_s"] == 105.0
+
+
+def test_deploy_run_asks_its_own_loop_only_for_ticks_to_judge_and_as_many_plays(monkeypatch):
+    """own_loop_verdict: no hard-limit or self-collision tick, or --own-loop-plays 0: nothing
+    played; --motion another clip: not compared, said why; a clip played 5 times by 1 env: 5 plays
+    back to back in the own loop, judged over the run's s of clip."""
+    from types import SimpleNamespace
+
+    from sim2real.deploy.cli import own_loop_check
+    from sim2real.eval.soak import own_loop_limits
+
+    asked = []
+
+    def reference(robot, policy, plays):
+        asked.append(plays)
+        scaled = {"clip_s": 18.0 * plays, "self_collision_ticks": 140 * plays}
+        return {**OWN_RUN, "stack": "made_up", "loop": "a loop", **scaled}
+
+    monkeypatch.setattr(own_loop_limits, "play_reference", reference)
+    rig = SimpleNamespace(robot=SimpleNamespace(control_period=0.02))
+    args = SimpleNamespace(own_loop_plays=1, motion=None, policies={"p": "p.onnx"})
+
+    def report(collided, plays=1):
+        v = _violations(collided, {})
+        return {"violations": v, "policy": "p.onnx", "envs": 1,
+                "tracking": {"ticks": 900 * plays, "plays": plays}}  # fmt: skip
+
+    assert own_loop_check.own_loop_verdict(args, rig, report(0)) is None and not asked
+    off = SimpleNamespace(**{**vars(args), "own_loop_plays": 0})
+    assert own_loop_check.own_loop_verdict(off, rig, report(10)) is None and not asked
+    other = SimpleNamespace(**{**vars(args), "motion": "x.csv"})
+    assert "another clip" in own_loop_check.own_loop_verdict(other, rig, report(10))["why"]
+    judged = own_loop_check.own_loop_verdict(args, rig, report(600, plays=5))
+    assert asked == [5] and judged["clip_s"] == pytest.approx(90.0)
+    assert judged["verdict"]["self_collision"]["passed"]  # 600 in 90 s against 700 in 90 s
+    lines = own_loop_check.own_loop_lines(judged)
+    assert lines[2].startswith("  own loop self_collision  ticks ours 600 over 90.0 s")

@@ -6,7 +6,9 @@ ticks per second of motion, ``1.1 x expected + 3 sqrt(expected)`` allowed).
 
 The own loop plays only when the run has such ticks to judge, on the simulated backend (the true
 state), with ``--own-loop-plays`` > 0 (default 1: ``deploy-run`` has no pushes, so the own loop
-is deterministic and one play says all), one policy (a hand-over's second policy is no part of
+is deterministic and one play from rest says all; a run that played its clip again,
+``--motion-playback loop``, gets as many plays back to back, each from where the last left the
+robot, as its envs played on average), one policy (a hand-over's second policy is no part of
 the own loop's motion) and the policy's own clip (not ``--motion``). Ticks lying down after a
 stop, hard-limit safe stops and the other hard kinds (velocity, effort, workspace) are judged as
 before.
@@ -49,6 +51,9 @@ def own_loop_verdict(args, rig, report: dict) -> dict | None:
         return {"compared": False, "why": "--motion plays another clip than the own loop's"}
     if len(args.policies) > 1:
         return {"compared": False, "why": "a second policy plays in the run"}
+    # a clip played again (--motion-playback loop): as many plays back to back in the own loop
+    played = (report.get("tracking") or report.get("motion_phase") or {}).get("plays") or 1
+    plays = max(plays, -(-int(played) // max(1, int(report.get("envs") or 1))))
     wall = time.perf_counter()
     own = play_reference(rig.robot, report["policy"], plays)
     if not own["compared"]:

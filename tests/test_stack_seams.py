@@ -72,9 +72,9 @@ def face_problems(stack: Stack) -> list[str]:
             "detect": callable,
             "contract": callable,
             "own_loop": callable,
-            "tracking_loop": lambda v: isinstance(v, TrackingLoop)
-            and callable(v.folder)
-            and callable(v.play),
+            "tracking_loop": lambda v: (
+                isinstance(v, TrackingLoop) and callable(v.folder) and callable(v.play)
+            ),
             "terrain": lambda v: isinstance(v, type),
             "domain": lambda v: isinstance(v, DomainReader),
             "clips": lambda v: bool(v) and all(isinstance(f, ClipFormat) for f in v),

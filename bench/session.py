@@ -83,7 +83,8 @@ def _deploy_run_on(
     robot: str, policy: str, duration: float, realtime: bool, extra: tuple[str, ...] = ()
 ) -> tuple[dict, float, str]:
     """:func:`_deploy_run` of deploy-run's ``--robot`` and ``--policy`` arguments."""
-    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_DIVERGED, deploy_run_main
+    from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, deploy_run_main
+    from sim2real.deploy.cli.run_verdict import EXIT_DIVERGED
 
     with tempfile.TemporaryDirectory() as tmp:
         report_path = Path(tmp) / "report.json"

@@ -120,18 +120,14 @@ def one_run(robot_path: str, policy: str, tile: str, seed: int, seconds: float, 
             stand_max: float = 0.0) -> dict:  # fmt: skip
     """One run (module docstring): a dict of crossed, t_s, x_m, stop, exit code, hard ticks."""
     from sim2real.deploy.backends.registry import make_backend
-    from sim2real.deploy.cli.deploy_run import (
-        build_rig,
-        exit_code,
-        run_policies,
-        run_report,
-    )
+    from sim2real.deploy.cli.deploy_run import build_rig, run_policies, run_report
     from sim2real.deploy.cli.run_operator import parse_policies
     from sim2real.deploy.cli.run_parser import (
         attach_vectors,
         build_parser,
         parse_terrain_option,
     )
+    from sim2real.deploy.cli.run_verdict import exit_code
     from sim2real.deploy.runtime import SimClock
     from sim2real.deploy.spec.drive import drive_robot
     from sim2real.robots import load_robot

@@ -454,3 +454,44 @@ def test_a_process_that_rendered_depth_can_still_import_torchs_compiler():
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True)
     assert done.returncode == 0 and "alive" in done.stdout, done.stderr[-500:]
+
+
+@needs_gl
+def test_a_switch_to_a_camera_policy_carries_the_camera_and_one_without_drops_it(go2, tmp_path):
+    """The runtime starts on a policy without an image input, the plant's camera attached for a
+    second one that reads it; switch_policy builds the camera stage for the second, which then
+    gets the camera's frames and stays RUNNING; back to the first, no stage (no stale stop for
+    a camera nobody reads). A camera policy the backend's camera does not serve is refused in
+    one line and the policy in control stays."""
+    plant = SimBackend(go2, "position", envs=1, models=[head_camera_model(go2, wall=1.0)])
+    seeing = depth_policy(go2, tmp_path)
+    blind = OnnxPolicy(linear_policy_file(go2, tmp_path), go2)
+    attach_plant_camera(plant, seeing.spec, latency=0.0, noise=DepthNoise(k=0, edge_jump=0))
+    rt = Runtime(go2, blind, plant)
+    assert rt.cameras is None
+    rt.start()
+    rt.run(30)
+    rt.switch_policy(seeing)
+    assert rt.cameras is not None and rt.cameras.block == seeing.spec.images[0]
+    rt.run(30)
+    assert (rt.mode == Mode.RUNNING).all() and rt.cameras.taken[0] >= 10
+    assert np.isfinite(seeing.images["depth"]).all() and seeing.images["depth"].any()
+    rt.switch_policy(blind)
+    assert rt.cameras is None
+    (tmp_path / "other").mkdir()
+    other = depth_policy(go2, tmp_path / "other", block=replace(TINY, camera="tail_depth"))
+    with pytest.raises(ValueError) as err:
+        rt.switch_policy(other)
+    line = str(err.value)
+    assert "\n" not in line and "'tail_depth'" in line and "'head_depth'" in line
+    assert rt.policy is blind and rt.cameras is None
+
+
+def linear_policy_file(robot, tmp_path):
+    """A zero-action ONNX policy of ``robot``'s default spec (the home pose), no image input."""
+    from tests.runtime_fixtures import linear_onnx
+
+    spec = PolicySpec.for_robot(robot)
+    nodes = [helper.make_node("MatMul", ["obs", "w"], ["action"])]
+    weights = {"w": np.zeros((spec.obs_dim, spec.act_dim), np.float32)}
+    return linear_onnx(spec, tmp_path / "blind.onnx", nodes, weights, "blind")

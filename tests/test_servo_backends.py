@@ -22,7 +22,7 @@ from sim2real.deploy.backends.emulator import ServoBusEmulator, WireFaults
 from sim2real.deploy.backends.servo.calibration import CalibrationError, load_lerobot_calibration
 from sim2real.deploy.backends.servo.servo_bus import ServoBusError
 from sim2real.deploy.backends.servo.torque_watch import TORQUE_CHECK_PERIOD, TORQUE_OFF
-from sim2real.deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT
+from sim2real.deploy.cli.run_verdict import EXIT_CLEAN, EXIT_FAULT
 from sim2real.deploy.core.backend import Backend, SimulatedPlant
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.runtime import Runtime, WallClock

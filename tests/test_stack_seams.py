@@ -26,6 +26,7 @@ from sim2real.deploy.core.stacks import (
     Absent,
     DomainReader,
     Stack,
+    TrackingLoop,
     register_stack,
     stacks,
 )
@@ -39,6 +40,7 @@ FACE_ROOMS = {
     "domain": "sim2real.eval.world.",
     "terrain": "sim2real.eval.world.",
     "own_loop": "sim2real.stacks.loops.",
+    "tracking_loop": "sim2real.stacks.loops.",
 }
 
 
@@ -70,6 +72,9 @@ def face_problems(stack: Stack) -> list[str]:
             "detect": callable,
             "contract": callable,
             "own_loop": callable,
+            "tracking_loop": lambda v: (
+                isinstance(v, TrackingLoop) and callable(v.folder) and callable(v.play)
+            ),
             "terrain": lambda v: isinstance(v, type),
             "domain": lambda v: isinstance(v, DomainReader),
             "clips": lambda v: bool(v) and all(isinstance(f, ClipFormat) for f in v),
@@ -181,6 +186,7 @@ STACK = register_stack(Stack(
     domain=Absent("ninthstack records no randomization"),
     clips=(ClipFormat("ninth_json", ".json", (), "ninthstack", read_clip),),
     terrain=Absent("it trains on a plane"), own_loop=Absent("no replica of its loop"),
+    tracking_loop=Absent("no replica of its loop"),
 ))
 '''
 

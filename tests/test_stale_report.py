@@ -18,7 +18,8 @@ import pytest
 
 from sim2real.deploy.backends.sim.faults import Fault, FaultInjector
 from sim2real.deploy.backends.sim.plant import SimBackend
-from sim2real.deploy.cli.deploy_run import EXIT_FAULT, deploy_run_main
+from sim2real.deploy.cli.deploy_run import deploy_run_main
+from sim2real.deploy.cli.run_verdict import EXIT_FAULT
 from sim2real.deploy.core.stale import arrivals_phrase, context, stale_context
 from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.runtime import Mode, Runtime, WallClock

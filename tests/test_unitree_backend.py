@@ -30,7 +30,7 @@ from sim2real.deploy.backends.unitree.dds import DdsLink  # noqa: E402
 from sim2real.deploy.backends.unitree.emulator import EmulatorFaults, UnitreeEmulator  # noqa: E402
 from sim2real.deploy.backends.unitree.emulator.robot import TRACE_EVERY  # noqa: E402
 from sim2real.deploy.backends.unitree.emulator.truth import walk_truth  # noqa: E402
-from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
+from sim2real.deploy.cli.run_verdict import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT  # noqa: E402
 from tests.runtime_fixtures import zero_action_onnx  # noqa: E402
 from tests.unitree_reference import (  # noqa: E402
     crc_bitwise,

@@ -97,7 +97,8 @@ def test_deploy_run_names_the_joint_how_deep_and_how_long_when_it_exits_1(tmp_pa
     which joint, for how many ticks and how far past (rad) in its summary and its report."""
     import json
 
-    from sim2real.deploy.cli.deploy_run import EXIT_HARD_VIOLATION, deploy_run_main
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
+    from sim2real.deploy.cli.run_verdict import EXIT_HARD_VIOLATION
     from tests.runtime_fixtures import adversarial_onnx
 
     policy = adversarial_onnx(tmp_path, arm3, "position")

@@ -286,7 +286,7 @@ def _own_loop(args, template, results: list[dict]) -> dict | None:
     if own["compared"]:
         joints = ", ".join(f"{j} {n}" for j, n in own["hard_limit_joints"].items())
         print(
-            f"soak-test: own loop: {own['plays']} play(s) of the clip in rl_sar's loop "
+            f"soak-test: own loop: {own['plays']} play(s) of the clip in {own['stack']}'s loop "
             f"({'pushes: ' + own['pushes'] if own['pushes'] else 'no pushes'}), "
             f"{own['clip_s']:.0f} s, {own['falls']} falls; hard-limit ticks "
             f"{own['hard_limit_ticks']} ({joints or 'none'}); the replayed guard would change "

@@ -15,5 +15,6 @@ STACK = register_stack(
         clips="sim2real.deploy.tasks.motion.formats:BEYONDMIMIC_CLIPS",
         terrain=Absent("its tracking tasks run on a plane"),
         own_loop=Absent("no replica of its play loop is written yet"),
+        tracking_loop=Absent("no replica of its play loop is written yet"),
     )
 )

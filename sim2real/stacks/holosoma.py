@@ -15,5 +15,6 @@ STACK = register_stack(
         clips="sim2real.deploy.tasks.motion.formats:HOLOSOMA_CLIPS",
         terrain=Absent("the soak does not read holosoma's terrain config (its plane is run)"),
         own_loop=Absent("no replica of holosoma's own sim2sim loop is written yet"),
+        tracking_loop=Absent("no replica of holosoma's own sim2sim loop is written yet"),
     )
 )

@@ -19,5 +19,8 @@ STACK = register_stack(
         own_loop=Absent(
             "Isaac Lab's own loop is Isaac Sim's; unitree_rl_lab's deployment is unitree_deploy's"
         ),
+        tracking_loop=Absent(
+            "its tracking policies' own loop is BeyondMimic's or holosoma's: no replica"
+        ),
     )
 )

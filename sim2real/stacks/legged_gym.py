@@ -17,5 +17,6 @@ STACK = register_stack(
         clips=Absent("legged_gym's tasks play no clip"),
         terrain="sim2real.eval.world.terrain_ranges:TerrainRanges",
         own_loop="sim2real.stacks.loops.unitree_rl_gym:controller",
+        tracking_loop=Absent("its policies are velocity-commanded: no motion to track"),
     )
 )

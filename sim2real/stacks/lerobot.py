@@ -27,5 +27,6 @@ STACK = register_stack(
             "its own loop is lerobot's select_action, which the export's parity check runs "
             "(sim2real.deploy.export.lerobot_act) where the extra 'lerobot' is installed"
         ),
+        tracking_loop=Absent("its policies are arm demonstrations, not motion tracking"),
     )
 )

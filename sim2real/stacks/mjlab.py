@@ -14,5 +14,6 @@ STACK = register_stack(
         clips=Absent("mjlab's tracking task reads BeyondMimic's NPZ (the beyondmimic stack's)"),
         terrain=Absent("the soak does not read env.yaml's terrain generator"),
         own_loop=Absent("no replica of mjlab's play loop is written yet"),
+        tracking_loop=Absent("no replica of mjlab's play loop is written yet"),
     )
 )

@@ -17,5 +17,6 @@ STACK = register_stack(
         clips="sim2real.deploy.tasks.motion.formats:RL_SAR_CLIPS",
         terrain=Absent("rl_sar runs on its simulator's scene: it describes no terrain of its own"),
         own_loop="sim2real.stacks.loops.himloco_terrain_loop:run",
+        tracking_loop="sim2real.stacks.loops.rl_sar_pushed:TRACKING_LOOP",
     )
 )

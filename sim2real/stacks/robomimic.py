@@ -16,5 +16,6 @@ STACK = register_stack(
         clips=Absent("its dances are phase-clocked: no clip file"),
         terrain=Absent("it runs on a plane"),
         own_loop="sim2real.stacks.loops.robomimic_dance:run",
+        tracking_loop="sim2real.stacks.loops.robomimic_dance:TRACKING_LOOP",
     )
 )

@@ -15,5 +15,8 @@ STACK = register_stack(
         clips=Absent("Unitree's deploy.yaml policies play no clip"),
         terrain=Absent("the deployment runs on the robot's ground: no terrain of its own"),
         own_loop="sim2real.stacks.loops.deploy_yaml_loop:run",
+        tracking_loop=Absent(
+            "Unitree's deploy.yaml policies are velocity-commanded: no motion to track"
+        ),
     )
 )

@@ -8,7 +8,9 @@ end is :mod:`sim2real.deploy.cli.run_summary`'s.
 ====  =====================================================================================
 0     clean: no hard violation, no latched fault
 1     a hard-limit violation: the true joint position (simulation) crossed a hard limit, or the
-      guard found the estimate beyond one (a safe stop)
+      guard found the estimate beyond one (a safe stop); a tracking run's hard-limit and
+      self-collision ticks only past what its own loop allows
+      (:mod:`sim2real.deploy.cli.own_loop_check`)
 2     a latched fault: some env ended FAULTED (or in a safe stop) after a fault of the table
 3     bad input: unreadable robot, policy or spec, mismatching contract, bad option; a servo bus
       that does not come up (port, missing servo, wrong model number, calibration); a Unitree
@@ -46,6 +48,7 @@ from sim2real.deploy.cli.exteroception import (
     close_camera,
     show_goal,
 )
+from sim2real.deploy.cli.own_loop_check import own_loop_verdict
 from sim2real.deploy.cli.policy_contract import check_drive_applied, contract_messages
 from sim2real.deploy.cli.run_checks import check_options, check_outputs, discard
 from sim2real.deploy.cli.run_operator import (
@@ -63,12 +66,10 @@ from sim2real.deploy.cli.run_parser import (
     parse_terrain_option,
 )
 from sim2real.deploy.cli.run_summary import print_summary
+from sim2real.deploy.cli.run_verdict import EXIT_BAD_INPUT, exit_code
 from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.spec.drive import drive_robot
 from sim2real.robots.files import atomic_write
-
-EXIT_CLEAN, EXIT_HARD_VIOLATION, EXIT_FAULT, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 1, 2, 3, 4
-EXIT_LEFT_SPOT = 5
 
 
 def run(args) -> int:
@@ -114,7 +115,10 @@ def run(args) -> int:
     backend = make_backend(args, robot, policy.spec.action.mode)  # the registry's factory
     simulated = isinstance(backend, SimulatedPlant)
     attach_height_map(args, backend, policy.spec)  # a height_scan block: the plant's ray casts
-    attach_camera(args, backend, policy.spec)  # an image input: the plant's MJCF camera
+    # an image input: the plant's MJCF camera, for the first policy that reads one (the camera
+    # goes with a switch of policy: Runtime.switch_policy)
+    seeing = [p.spec for p in policies.values() if getattr(p.spec, "images", ())]
+    attach_camera(args, backend, seeing[0] if seeing else policy.spec)
     check_drive_applied(drive, simulated or getattr(backend, "commands_gains", False), args.backend)
     for line in drive.values():
         print(
@@ -336,6 +340,7 @@ def _run_rig(args, rig, realtime, injector, clock, rt_request) -> int:
     report["start_s"] = start_s  # of wall_s: paid once, not per tick
     report["realtime_settings"] = settings.summary()
     report["diverged"] = diverged
+    report["own_loop"] = own_loop_verdict(args, rig, report)
     report["exit_code"] = exit_code(report, rig)
     print_summary(report)
     if args.report:
@@ -416,37 +421,6 @@ def fault_report(rig, injector) -> dict:
             for e, j in np.argwhere(rt.drive_errors)
         ],
     }
-
-
-def exit_code(report: dict, rig) -> int:
-    """The exit code of a run's ``report`` (module docstring); sets ``report["hard_violations"]``
-    (true-state ticks by type, lying down included)."""
-    from sim2real.deploy.monitors.violations import HARD_VIOLATION_TYPES
-
-    v = report["violations"]
-    true = {"hard_limit": 0} if v is None else {**v["by_type"], "any": v["any"]}
-    down = {} if v is None else v["while_down"]
-    hard = {
-        k: int(true.get(k, 0)) + int(down.get(k, 0))
-        for k in HARD_VIOLATION_TYPES
-        if true.get(k, 0) + down.get(k, 0)
-    }
-    report["hard_violations"] = hard
-    if report["diverged"]:
-        return EXIT_DIVERGED
-    if hard or report["faults"]["by_cause"]["hard_limit"] > 0:
-        return EXIT_HARD_VIOLATION
-    # an operator's own stop (damp, lie down) is where an operated run may end: not a fault
-    operated = report.get("operator") is not None
-    stopped = [
-        m in ("FAULTED", "SAFE_STOP") and not (operated and c == "operator")
-        for m, c in zip(report["final_state"], report["final_cause"], strict=True)
-    ]
-    if any(stopped) or rig.true_falls():
-        return EXIT_FAULT
-    if ((report.get("tracking") or {}).get("travel") or {}).get("off_path"):
-        return EXIT_LEFT_SPOT  # a dance that left its spot: a finding, never a success
-    return EXIT_CLEAN
 
 
 def deploy_run_main(argv: list[str] | None = None) -> int:

@@ -194,6 +194,17 @@ def _add_task_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _plays(text: str) -> int:
+    """``--own-loop-plays``: an integer >= 0."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return n
+
+
 def _add_motion_options(p: argparse.ArgumentParser) -> None:
     """Add a motion-tracking policy's options: the clip, its rate, what follows it, its start."""
     p.add_argument(
@@ -252,6 +263,15 @@ def _add_motion_options(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="s of RUNNING before the clip starts, the policy holding its first frame meanwhile "
         "(as the operator starts a clip from a stand; a robot let off its gantry first)",
+    )
+    p.add_argument(
+        "--own-loop-plays",
+        type=_plays,
+        default=1,
+        metavar="N",
+        help="a tracking run with hard-limit or self-collision ticks: plays of its motion in the "
+        "policy's own loop, whose ticks the run's are judged against (0: not compared; "
+        "docs/motion-tracking.md)",
     )
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 from sim2real.deploy.cli.clip_summary import print_tracking
+from sim2real.deploy.cli.own_loop_check import own_loop_lines
 
 #: deg of heading change the commands did not ask for past which the summary flags a drift (our
 #: choice: a straight 20 s walk that turns 30 deg ends 5 m off a 10 m line).
@@ -185,6 +186,12 @@ def _print_violations(r: dict) -> None:
         if down.get("any"):
             text = ", ".join(f"{k} {n}" for k, n in down.items() if k != "any" and n)
             print(f"  violations lying down after a stop (true state, sim)  ticks: {text}")
+        for line in own_loop_lines(r.get("own_loop")):
+            print(line)
+        within = r.get("within_own_loop")
+        if within:
+            kinds = ", ".join(f"{k} {n}" for k, n in within.items())
+            print(f"  within own loop   {kinds} ticks: within what the policy's own loop has")
         hard = r.get("hard_violations")
         if hard:
             kinds = ", ".join(f"{k} {n}" for k, n in hard.items())

@@ -10,8 +10,10 @@ reason it has none: never silently missing. The dispatch sites ask the registry,
 names: the contract chain (:func:`sim2real.deploy.spec.foreign.registry.read_contract`: ``detect``
 then ``contract``, stacks tried by ``rank``), the clip formats
 (:func:`sim2real.deploy.tasks.motion.formats.clip_formats`: ``clips``), the training domain
-(:mod:`sim2real.eval.world.domain`: ``domain``), and the push benchmark and the stacks' own loops
-(``own_loop``). ``tests/test_stack_seams.py`` fails naming the stack and the face when a face
+(:mod:`sim2real.eval.world.domain`: ``domain``), the push benchmark and the stacks' own loops
+(``own_loop``), and the own loop a tracking run's hard-limit and self-collision ticks are judged
+against (``tracking_loop``: :mod:`sim2real.eval.soak.own_loop_limits`, for the soak and
+``deploy-run``). ``tests/test_stack_seams.py`` fails naming the stack and the face when a face
 neither resolves nor is declared absent, or lives above the room that asks for it.
 """
 
@@ -27,8 +29,9 @@ from sim2real.deploy.core.registry import Registry, load_target
 #: ``contract``: ``(OnnxFacts) -> ForeignContract``, its contract (ForeignFormatError when it
 #: cannot be read); ``domain``: a :class:`DomainReader`; ``clips``: a tuple of
 #: :class:`~sim2real.deploy.tasks.motion.formats.ClipFormat`; ``terrain``: the type its terrain
-#: description is read into; ``own_loop``: the function that runs a policy in the stack's own loop.
-FACES = ("detect", "contract", "domain", "clips", "terrain", "own_loop")
+#: description is read into; ``own_loop``: the function that runs a policy in the stack's own loop;
+#: ``tracking_loop``: a :class:`TrackingLoop`, the stack's own loop of a motion-tracking policy.
+FACES = ("detect", "contract", "domain", "clips", "terrain", "own_loop", "tracking_loop")
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,28 @@ class DomainReader:
 
 
 @dataclass(frozen=True)
+class TrackingLoop:
+    """A stack's own loop of a motion-tracking policy (a clip, or a phase-clocked dance): the
+    reference a tracking run's hard-limit and self-collision ticks are judged against.
+
+    Attributes:
+        what: For messages: ``"rl_sar whole_body_tracking (the TorchScript policy.pt ...)"``.
+        folder: ``(Path) -> Path | None``: the stack's policy folder a policy file (the ONNX
+            export beside the stack's own file) sits in, None when it is not this loop's.
+        play: ``(robot, folder, seed, seconds, pushes, watch, repeat=1) -> Run``: ``repeat``
+            plays back to back of the folder's motion on ``robot``'s bare plant
+            (:mod:`sim2real.stacks.loops.bare`), at most ``seconds`` s of it (None: all), under
+            ``pushes`` (a :class:`~sim2real.eval.world.pushes.PushRanges` or None) seeded by
+            ``seed``; ``watch(d, target)`` sees each tick's true ``mujoco.MjData`` and PD target
+            (robot order, rad) before the physics steps. ``Run.walked``: s of motion played.
+    """
+
+    what: str
+    folder: Callable
+    play: Callable
+
+
+@dataclass(frozen=True)
 class Stack:
     """One stack (module docstring); every face of :data:`FACES` a field.
 
@@ -77,6 +102,7 @@ class Stack:
     clips: object
     terrain: object
     own_loop: object
+    tracking_loop: object
 
     def face(self, name: str):
         """The face ``name`` resolved (a ``"module:attribute"`` imported now), or None when the

@@ -108,12 +108,21 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
     hands over from the home pose anyway). A hand-over still in progress is cut short: the
     policy it was leaving is dropped, the blend starts again from the current target.
 
+    What the new policy reads beyond the estimate goes with it (:func:`carry_inputs`): its
+    image input's camera stage (the backend's camera, built again for another image block, none
+    for a policy without one) and a phase-clocked policy's motion clock, started again (its
+    first RUNNING tick reads 0, as rl_sar's fsm state's ``Enter`` resets
+    ``episode_length_buf``).
+
     Raises:
-        ValueError: a spec for another robot or control mode, a negative ``blend_time``.
+        ValueError: a spec for another robot or control mode, a negative ``blend_time``, an
+            image block the backend's camera does not serve, a motion phase on a robot whose
+            tick keeps no motion clock (nothing changed).
     """
     if not blend_time >= 0:
         raise ValueError(f"switch_policy: blend_time must be >= 0 s, got {blend_time}")
     check_policy(policy.spec, runtime.robot, runtime.mode_name, runtime.targets)
+    carry = carry_inputs(runtime, policy.spec)  # checked before anything changes
     ticks = int(round(blend_time / runtime.dt))
     outgoing, spec = runtime.policy, runtime.spec
     runtime.handover = None
@@ -121,6 +130,7 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
         n = runtime.robot.n_joints
         runtime.handover = HandOver(outgoing, spec, runtime.envs, n, ticks, runtime.target)
     runtime.policy, runtime.spec = policy, policy.spec
+    carry()
     runtime.follows_targets = follows_targets(policy.spec, runtime.targets, runtime.mode_name)
     if not runtime.follows_targets:  # the smoother shapes every env's targets again
         runtime.smoother.follow_envs.fill(False)
@@ -129,6 +139,66 @@ def switch_policy(runtime, policy, blend_time: float) -> None:
         runtime._obs = obs = np.zeros((runtime.envs, runtime.spec.obs_dim), dtype=np.float32)
     runtime.spec.observation(runtime.state, runtime.goal, out=obs)
     runtime._reset_policy(np.ones(runtime.envs, dtype=bool))  # noqa: SLF001
+
+
+def carry_inputs(runtime, spec):
+    """Check what ``spec`` reads beyond the estimate against ``runtime`` and return the
+    function that hands it over (:func:`switch_policy`): the camera stage and the motion clock.
+
+    Raises:
+        ValueError: an image block the backend's camera (``backend.camera_source``) does not
+            serve (none, or another camera, kind or frame size), a ``motion_phase`` block on a
+            runtime whose base tick keeps no motion clock (a fixed base).
+    """
+    from sim2real.deploy.core.modes import RUNNING as running_mode
+    from sim2real.deploy.core.phase_clock import phase_clock_for
+    from sim2real.deploy.runtime.camera import camera_stage
+
+    images = getattr(spec, "images", ())
+    current = runtime.cameras
+    rebuild = bool(images) and (current is None or current.block != images[0])
+    if rebuild:
+        block = images[0]
+        source = getattr(runtime.backend, "camera_source", None)
+        served = getattr(source, "block", None)
+        if source is None or (
+            served is not None
+            and (served.camera, served.kind, tuple(served.shape))
+            != (block.camera, block.kind, tuple(block.shape))
+        ):
+            what = (
+                "none" if source is None else f"'{served.camera}' ({served.kind}, {served.shape})"
+            )
+            raise ValueError(
+                f"switch_policy: the policy's {block.kind} camera '{block.camera}' "
+                f"{tuple(block.shape)} is not the backend's camera ({what}): attach it for "
+                "this policy"
+            )
+    tick = runtime.base_tick
+    phased = any(b.name == "motion_phase" for b in spec.observation_blocks)
+    if phased and not hasattr(tick, "phase_clock"):
+        raise ValueError(
+            "switch_policy: the policy reads a motion_phase; this robot's tick keeps no motion "
+            "clock (a floating base's does)"
+        )
+
+    def carry() -> None:
+        if not images:
+            runtime.cameras = None
+        elif rebuild:
+            runtime.cameras = camera_stage(spec, runtime.envs, runtime.robot, runtime.backend)
+        # the fused estimate-and-observe call only without a camera stage to feed (as built)
+        fused = runtime._compiled is not None and tick.fusable  # noqa: SLF001 - the runtime's room
+        runtime._fused = fused and runtime.cameras is None  # noqa: SLF001
+        if phased:
+            if tick.phase_clock is None:
+                tick.phase_clock = phase_clock_for(spec, runtime.state, runtime.dt)
+            clock = tick.phase_clock
+            # the next RUNNING tick's advance makes it 0: the new motion's first tick
+            clock.ticks[:] = np.where(runtime.mode == running_mode, -1, 0)
+            clock.time.fill(0.0)
+
+    return carry
 
 
 class RampIn:

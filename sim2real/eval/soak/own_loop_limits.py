@@ -3,14 +3,17 @@ loop on the same clip (the guard-replay method, ``bench/guard_replay.py``) befor
 blamed for them: rl_sar's G1 dances hold their ankle rolls at, or a few mrad past, their hard
 limits in their own loop, which has no guard.
 
-:func:`own_loop_reference` plays the clip ``plays`` times in the policy's own loop (rl_sar's
-whole_body_tracking loop, :func:`own_tracking_loop`) on the soak's robot under the soak's pushes
-(its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``; without pushes the loop is
-deterministic and plays once; no faults, randomization or sensor noise: the true state of the
-nominal robot), each play to the clip's end or its first fall, and counts per joint the ticks past
-a hard limit and, replaying a fresh :class:`~sim2real.deploy.safety.guard.SafetyGuard` (position
-mode) on each tick's true state and the policy's target (not applied), the ticks on which the
-guard would have changed it, per check.
+:func:`own_loop_reference` plays the clip ``plays`` times in the policy's own loop (the
+``tracking_loop`` face of the stack whose folder the policy sits in, :func:`own_tracking_loop`:
+rl_sar's whole_body_tracking loop, RoboMimic_Deploy's dance) on the soak's robot under the soak's
+pushes (its domain's ``[pushes]``, seeds ``seed`` .. ``seed + plays - 1``; without pushes the loop
+is deterministic from its rest, so the plays go back to back, each from where the last left the
+robot, as an exhibition plays its clip again; no faults, randomization or sensor noise: the true
+state of the nominal robot), each play to the clip's end or its first fall, and counts per joint
+the ticks past a hard limit, the ticks with a collision pair touching (``deploy-run``'s
+judgement, :mod:`sim2real.deploy.cli.own_loop_check`) and, replaying a fresh
+:class:`~sim2real.deploy.safety.guard.SafetyGuard` (position mode) on each tick's true state and
+the policy's target (not applied), the ticks on which the guard would have changed it, per check.
 
 The rule (:func:`judge_hard_limits`, :func:`judge_interventions`): a joint's own-loop rate (ticks
 past its hard limit per second of clip) times the seconds of clip the session played is its
@@ -22,8 +25,8 @@ hard-limit safe stop. Every tick up counts (clips, transitions, rests: rl_sar's 
 so a rest gets no allowance). ``interventions`` passes at most ``max_intervention_rate`` of the
 ticks, or at most ``(1 + MARGIN)`` times the share of the own loop's ticks the replayed guard
 would have changed (the checks the session judges; a guide, not a bound: states our runtime did
-not produce). Without an own loop here (no rl_sar ``whole_body_tracking`` folder beside the ONNX,
-or ``--motion`` another clip) a session is judged as before, and the report says why.
+not produce). Without an own loop here (no stack's tracking loop finds the ONNX's folder, or
+``--motion`` another clip) a session is judged as before, and the report says why.
 """
 
 from __future__ import annotations
@@ -44,57 +47,98 @@ SIGMAS = 3.0
 OWN_LOOP_PLAYS = 3
 
 
-def own_tracking_loop():
-    """The policy's own tracking loop: rl_sar's ``whole_body_tracking`` loop under the soak's
-    pushes (:func:`sim2real.stacks.loops.rl_sar_pushed.rl_sar_loop`, ``rl_sar_loop(robot,
-    folder, seed, seconds, pushes, watch)``). The stacks sit on the top floor: the soak resolves
-    it by name at run time (:func:`sim2real.deploy.core.registry.load_target`), as the stacks'
-    registry resolves a face."""
-    from sim2real.deploy.core.registry import load_target
+def own_tracking_loop(policy: str | Path):
+    """The policy's own tracking loop: the first registered stack (by rank) whose
+    ``tracking_loop`` face (:class:`~sim2real.deploy.core.stacks.TrackingLoop`) finds its folder
+    around ``policy`` (rl_sar's ``whole_body_tracking`` loop, RoboMimic_Deploy's dance on an
+    rl_sar ``robomimic`` folder). The stacks sit on the top floor: the registry resolves the face
+    at run time.
 
-    return load_target("sim2real.stacks.loops.rl_sar_pushed:rl_sar_loop")
+    Returns:
+        ``(stack name, TrackingLoop, folder)``, or None when no stack's loop plays the policy.
+    """
+    from sim2real.deploy.core.stacks import with_face
+
+    for stack, loop in with_face("tracking_loop"):
+        folder = loop.folder(policy)
+        if folder is not None:
+            return stack.name, loop, folder
+    return None
 
 
-def rl_sar_folder(policy: str | Path) -> Path | None:
-    """The rl_sar ``whole_body_tracking`` folder the ONNX ``policy`` sits in (``config.yaml``,
-    its TorchScript ``policy.pt`` and ``base.yaml`` two levels up, as rl_sar lays
-    ``policy/<robot>/whole_body_tracking/<name>``), or None."""
-    folder = Path(policy).resolve().parent
-    if folder.parent.name != "whole_body_tracking":
-        return None
-    if not (folder / "config.yaml").is_file() or not (folder / "policy.pt").is_file():
-        return None
-    return folder if (folder.parent.parent / "base.yaml").is_file() else None
+def play_reference(robot, policy: str | Path, plays: int, seed: int = 0, pushes=None) -> dict:
+    """The own loop's figures on ``policy``'s motion (module docstring), ``plays`` plays on
+    ``robot`` (its drive applied: the run's robot), seeds ``seed`` .. ``seed + plays - 1``,
+    under ``pushes`` (a :class:`~sim2real.eval.world.pushes.PushRanges`); without pushes
+    (None) the loop is deterministic from its rest: the ``plays`` plays go back to back, each
+    from where the last left the robot (rl_sar's ``Reset``, RoboMimic's ``Dance.enter``).
+
+    Returns:
+        ``{"compared": False, "why": str}`` where no stack's loop plays the policy; else
+        ``compared`` True, ``stack``, ``loop`` (what ran), ``folder``, ``plays``, ``falls``,
+        ``clip_s`` (s of motion played, summed), ``ticks``, ``hard_limit_ticks`` (ticks with a
+        joint past a hard limit), ``hard_limit_joints`` {joint: ticks}, most first,
+        ``self_collision_ticks`` (ticks with a pair of ``safety.collision_pairs`` touching, the
+        violation monitor's collision model), ``self_collision_pairs`` {pair: ticks},
+        ``guard_checks`` {check: ticks the replayed guard's check changed the target},
+        ``guard_patterns`` [[checks, ticks]], ``guard_ticks`` (ticks with any change),
+        ``pushes`` (described, or None).
+    """
+    found = own_tracking_loop(policy)
+    if found is None:
+        return {
+            "compared": False,
+            "why": f"{policy}: no stack's own tracking loop plays it (an rl_sar "
+            "whole_body_tracking or robomimic folder beside it: config.yaml, its module, "
+            "base.yaml two levels up): no own loop to compare with",
+        }
+    stack, loop, folder = found
+    replay = GuardReplay(robot)
+    falls, clip_s = 0, 0.0
+    # without pushes a play from the same rest is the same play: the plays go back to back
+    # instead (the clip again where the last left the robot, as an exhibition repeats it)
+    for k in range(plays if pushes is not None else 1):
+        repeat = 1 if pushes is not None else plays
+        run = loop.play(robot, folder, seed + k, None, pushes, replay, repeat)
+        falls += run.fell_at is not None
+        clip_s += run.walked
+    joints = replay.joint_ticks
+    order = np.argsort(-joints, kind="stable")
+    pairs = replay.pair_ticks
+    by_pair = np.argsort(-pairs, kind="stable")
+    return {
+        "compared": True,
+        "stack": stack,
+        "loop": loop.what,
+        "folder": str(folder),
+        "plays": plays,
+        "falls": falls,
+        "clip_s": clip_s,
+        "ticks": replay.ticks,
+        "hard_limit_ticks": replay.past_ticks,
+        "hard_limit_joints": {robot.joint_names[j]: int(joints[j]) for j in order if joints[j] > 0},
+        "self_collision_ticks": replay.collision_ticks,
+        "self_collision_pairs": {
+            replay.pair_names[k]: int(pairs[k]) for k in by_pair if pairs[k] > 0
+        },
+        "guard_checks": dict(replay.checks.most_common()),
+        "guard_patterns": [[list(p), n] for p, n in replay.patterns.most_common()],
+        "guard_ticks": sum(n for p, n in replay.patterns.items() if p),
+        "pushes": None if pushes is None else pushes.describe(),
+    }
 
 
 def own_loop_reference(template, plays: int = OWN_LOOP_PLAYS) -> dict:
-    """The own loop's figures on the clip of ``template`` (a
-    :class:`~sim2real.eval.soak.session.SessionConfig`) (module docstring).
-
-    Returns:
-        ``{"compared": False, "why": str}`` where there is no own loop to compare with; else
-        ``compared`` True, ``loop`` (what ran), ``folder``, ``plays``, ``falls``, ``clip_s``
-        (s of clip played, summed), ``ticks``, ``hard_limit_ticks`` (ticks with a joint past a
-        hard limit), ``hard_limit_joints`` {joint: ticks}, most first, ``guard_checks`` {check:
-        ticks the replayed guard's check changed the target}, ``guard_patterns`` [[checks,
-        ticks]] (the set of checks that acted on a tick, for any ``by_design``), ``guard_ticks``
-        (ticks with any change), ``pushes`` (the domain's, described, or None).
-    """
+    """The own loop's figures (:func:`play_reference`) on the clip of ``template`` (a
+    :class:`~sim2real.eval.soak.session.SessionConfig`) on the soak's robot under the soak's
+    pushes (its domain's ``[pushes]``); ``{"compared": False, "why"}`` for 0 plays, another clip
+    (``--motion``) or a policy no stack's loop plays."""
     if plays < 1:
         return {"compared": False, "why": "--own-loop-plays 0"}
     if template.motion is not None:
         return {"compared": False, "why": "--motion plays another clip than the policy's own loop"}
-    folder = rl_sar_folder(template.policy)
-    if folder is None:
-        return {
-            "compared": False,
-            "why": f"{template.policy}: no rl_sar whole_body_tracking folder beside it "
-            "(config.yaml, policy.pt, base.yaml two levels up): no own loop to compare with",
-        }
-    try:
-        loop = own_tracking_loop()
-    except ImportError as e:
-        return {"compared": False, "why": f"the own loop's replica is not importable ({e})"}
+    if own_tracking_loop(template.policy) is None:
+        return play_reference(None, template.policy, plays)
     from sim2real.deploy.kinds import robot_kind
     from sim2real.deploy.spec.drive import drive_robot
     from sim2real.eval.world.world_faces import WORLD_OF_KIND
@@ -103,37 +147,14 @@ def own_loop_reference(template, plays: int = OWN_LOOP_PLAYS) -> dict:
     robot = load_robot(template.robot)
     robot = drive_robot(robot, template.load_policy(robot).spec)[0]
     pushes = WORLD_OF_KIND.get(robot_kind(robot).name).domain_pushes(template.ranges)
-    replay = GuardReplay(robot)
-    if pushes is None:  # the loop is deterministic: every play would be the first
-        plays = 1
-    falls, clip_s = 0, 0.0
-    for k in range(plays):
-        run = loop(robot, folder, template.seed + k, None, pushes, watch=replay)
-        falls += run.fell_at is not None
-        clip_s += run.walked
-    joints = replay.joint_ticks
-    order = np.argsort(-joints, kind="stable")
-    return {
-        "compared": True,
-        "loop": "rl_sar whole_body_tracking (the TorchScript policy.pt on the true state, "
-        "its rl_kp/rl_kd; no estimator, guard or noise)",
-        "folder": str(folder),
-        "plays": plays,
-        "falls": falls,
-        "clip_s": clip_s,
-        "ticks": replay.ticks,
-        "hard_limit_ticks": replay.past_ticks,
-        "hard_limit_joints": {robot.joint_names[j]: int(joints[j]) for j in order if joints[j] > 0},
-        "guard_checks": dict(replay.checks.most_common()),
-        "guard_patterns": [[list(p), n] for p, n in replay.patterns.most_common()],
-        "guard_ticks": sum(n for p, n in replay.patterns.items() if p),
-        "pushes": None if pushes is None else pushes.describe(),
-    }
+    return play_reference(robot, template.policy, plays, template.seed, pushes)
 
 
 class GuardReplay:
     """The own loop's watch (``watch(d, target)``): per tick, the joints past their hard limits
-    in the true state ``d`` (a ``mujoco.MjData`` of ``robot``'s plant) and the checks a
+    in the true state ``d`` (a ``mujoco.MjData`` of ``robot``'s plant), the collision pairs
+    touching there (the violation monitor's model: ``safety.collision_pairs`` of robot.toml,
+    coal, :func:`~sim2real.deploy.safety.collision.collision_model`) and the checks a
     :class:`~sim2real.deploy.safety.guard.SafetyGuard` would have changed ``target`` (rad, robot
     order) by, from that state (joints, the base's tilt, a foot in contact where MuJoCo has a
     contact of its body with the floor: ``bench/guard_replay.py``'s reading)."""
@@ -143,6 +164,7 @@ class GuardReplay:
 
         from sim2real.deploy.core.state import RobotState
         from sim2real.deploy.safety.checks import CHECKS
+        from sim2real.deploy.safety.collision import collision_model
         from sim2real.deploy.safety.guard import SafetyGuard
 
         self.robot, self.names = robot, CHECKS
@@ -159,6 +181,16 @@ class GuardReplay:
         self.joint_ticks = np.zeros(robot.n_joints, dtype=np.int64)
         self.checks: collections.Counter = collections.Counter()
         self.patterns: collections.Counter = collections.Counter()
+        self.pin_model = robot.fixed_base_model
+        self.pin_data = self.pin_model.createData()
+        self.geom_model, self.geom_data = collision_model(robot)
+        objects = self.geom_model.geometryObjects
+        self.pair_names = [
+            f"{objects[p.first].name}|{objects[p.second].name}"
+            for p in self.geom_model.collisionPairs
+        ]
+        self.pair_ticks = np.zeros(len(self.pair_names), dtype=np.int64)
+        self.collision_ticks = 0
 
     def __call__(self, d, target: np.ndarray) -> None:
         from sim2real.deploy.core.attitude import projected_gravity
@@ -169,6 +201,7 @@ class GuardReplay:
         self.ticks += 1
         self.past_ticks += bool(past.any())
         self.joint_ticks += past
+        self._collisions(q)
         contact = np.zeros(len(self.feet), dtype=bool)
         for k in range(d.ncon):
             bodies = (self.geom_body[d.contact[k].geom1], self.geom_body[d.contact[k].geom2])
@@ -187,6 +220,19 @@ class GuardReplay:
         self.checks.update(acted)
         self.patterns[acted] += 1
 
+    def _collisions(self, q: np.ndarray) -> None:
+        """Count the pairs touching at the joint angles ``q`` (rad, robot order)."""
+        import pinocchio as pin
+
+        if not self.pair_names:
+            return
+        args = (self.pin_model, self.pin_data, self.geom_model, self.geom_data, q)
+        if not pin.computeCollisions(*args, False):
+            return
+        touching = [r.isCollision() for r in self.geom_data.collisionResults]
+        self.pair_ticks += touching
+        self.collision_ticks += 1
+
 
 def allowance(rate_per_s: float, clip_s: float) -> float:
     """Ticks a joint may spend past its hard limit in ``clip_s`` s of clip when the own loop
@@ -202,6 +248,64 @@ def session_clip_s(result: dict) -> float:
     return sum(int(c.get("ticks", 0)) for c in result["exhibition"]["clips"]) * dt
 
 
+def judge_counts(ours: dict, own: dict, own_clip_s: float, clip_s: float) -> dict:
+    """Each name's ticks (a joint's past its hard limit, or a kind's) judged by the module
+    docstring's rule: ``ours`` {name: ticks} over ``clip_s`` s of motion against ``own`` {name:
+    ticks} over the own loop's ``own_clip_s`` s. Returns {name: {ours, own, allowed, stack}}
+    for every name in either, ``stack`` the ticks past the allowance (the soak's and
+    ``deploy-run``'s one rule)."""
+    out = {}
+    for name in list(ours) + [n for n in own if n not in ours]:
+        rate = own.get(name, 0) / own_clip_s if own_clip_s > 0 else 0.0
+        allowed = allowance(rate, clip_s)
+        n = int(ours.get(name, 0))
+        out[name] = {
+            "ours": n,
+            "own": int(own.get(name, 0)),
+            "allowed": round(allowed, 1),
+            "stack": max(0, math.ceil(n - allowed)),
+        }
+    return out
+
+
+#: The kinds of hard violation a tracking run's ticks are judged against its own loop on, and how
+#: (:func:`judge_run`): a joint's hard limit per joint (as the soak's), self-collision as the
+#: ticks with any pair touching.
+JUDGED_KINDS = ("hard_limit", "self_collision")
+
+
+def judge_run(violations: dict, own: dict, clip_s: float) -> dict:
+    """``deploy-run``'s hard-limit and self-collision ticks (its report's ``violations``: the
+    true state while up, every env) over ``clip_s`` s of motion played, judged against ``own``
+    (:func:`play_reference`, compared) by :func:`judge_counts` (module docstring's rule). The
+    own loop has no excuse for the clip's own contacts: its self-collision ticks count every
+    contact, the run's those its reference does not make.
+
+    Returns:
+        {kind: {"ours", "own", "allowed", "stack", "passed", "names": {name: judge_counts'
+        figures}}} for each kind of :data:`JUDGED_KINDS`: ``ours``/``own`` the ticks, ``allowed``
+        and ``stack`` summed over the names; ``passed``: no tick past the allowance.
+    """
+    hard = {j: int(v["ticks"]) for j, v in (violations.get("hard_limit_joints") or {}).items()}
+    collided = int(violations["by_type"].get("self_collision", 0))
+    per_kind = {
+        "hard_limit": judge_counts(hard, own["hard_limit_joints"], own["clip_s"], clip_s),
+        "self_collision": judge_counts(
+            {"self_collision": collided} if collided else {},
+            {"self_collision": own["self_collision_ticks"]} if own["self_collision_ticks"] else {},
+            own["clip_s"],
+            clip_s,
+        ),
+    }
+    out = {}
+    for kind, names in per_kind.items():
+        total = {k: sum(v[k] for v in names.values()) for k in ("ours", "own", "allowed", "stack")}
+        total["ours"] = int(violations["by_type"].get(kind, 0))  # ticks, not joint-ticks
+        total["own"] = own["hard_limit_ticks" if kind == "hard_limit" else "self_collision_ticks"]
+        out[kind] = {**total, "passed": total["stack"] == 0, "names": names}
+    return out
+
+
 def judge_hard_limits(result: dict, own: dict) -> tuple[bool, str, dict]:
     """``no_hard_violation`` of an exhibition session against ``own``
     (:func:`own_loop_reference`, compared) by the module docstring's rule.
@@ -213,18 +317,7 @@ def judge_hard_limits(result: dict, own: dict) -> tuple[bool, str, dict]:
     """
     clip_s = session_clip_s(result)
     ours = result["violations"].get("hard_limit_joints") or {}
-    mine = own["hard_limit_joints"]
-    joints = {}
-    for j in list(ours) + [j for j in mine if j not in ours]:
-        rate = mine.get(j, 0) / own["clip_s"] if own["clip_s"] > 0 else 0.0
-        allowed = allowance(rate, clip_s)
-        n = int(ours.get(j, 0))
-        joints[j] = {
-            "ours": n,
-            "own": int(mine.get(j, 0)),
-            "allowed": round(allowed, 1),
-            "stack": max(0, math.ceil(n - allowed)),
-        }
+    joints = judge_counts(ours, own["hard_limit_joints"], own["clip_s"], clip_s)
     down = result["violations"].get("while_down", {}).get("hard_limit", 0)
     stops = result["runtime"]["by_cause"].get("hard_limit", 0)
     stack = sum(v["stack"] for v in joints.values())

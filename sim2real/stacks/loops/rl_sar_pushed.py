@@ -2,7 +2,8 @@
 folder's clip as rl_sar's own MuJoCo loop plays it (:mod:`sim2real.stacks.loops.rl_sar_tracking`,
 :mod:`sim2real.stacks.loops.rl_sar_motion`) on a bare plant (:mod:`sim2real.stacks.loops.bare`),
 pushed by the soak's schedule. The tracking push benchmark (``bench/push_tracking.py``) and the
-soak's own-loop reference of a dance (:mod:`sim2real.eval.soak.own_loop_limits`) run it.
+soak's own-loop reference of a dance (:mod:`sim2real.eval.soak.own_loop_limits`) run it: the
+``rl_sar`` stack's ``tracking_loop`` face (:data:`TRACKING_LOOP`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.backends.sim.disturbances import SimDisturbances
+from sim2real.deploy.core.stacks import TrackingLoop
 from sim2real.eval.world.pushes import DomainPushes
 from sim2real.stacks.loops.bare import Run, bare_plant, past_hard_limit, true_fall
 from sim2real.stacks.loops.rl_sar_motion import RlSarMotion, rl_sar_params
@@ -23,14 +25,18 @@ from sim2real.stacks.loops.walk import Walk
 SETTLE = 1.0
 
 
-def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=None) -> Run:
+def rl_sar_loop(
+    robot, folder, seed: int, seconds: float | None, pushes, watch=None, repeat: int = 1
+) -> Run:
     """One play of rl_sar ``folder``'s clip in rl_sar's loop (module docstring) on ``robot`` (its
     joints named as base.yaml's ``joint_names``), under ``pushes`` (a
     :class:`~sim2real.eval.world.pushes.PushRanges`; None: none), at most ``seconds`` s of clip
     (None: all of it). ``watch(d, target)`` (optional) sees each clip tick's true state (the
     ``mujoco.MjData`` the policy read) and the PD target (robot order, rad) the policy gave from
     it, before the physics steps (the soak's own-loop reference,
-    :mod:`sim2real.eval.soak.own_loop_limits`).
+    :mod:`sim2real.eval.soak.own_loop_limits`). ``repeat``: plays of the clip back to back, each
+    aligned by rl_sar's ``Reset`` to the robot as the last one left it (``seconds`` then caps
+    them all; ``Run.walked``: s of clip played in all).
 
     Raises:
         ValueError: a joint of base.yaml the robot lacks, or a control period not rl_sar's
@@ -67,14 +73,17 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=N
     motion.reset(d.qpos[3:7].copy(), d.qpos[qo:][ours][waist])
     net = load_policy(folder / params["model_name"])
     actions = np.zeros(len(ours), dtype=np.float32)
-    ticks = round(motion.duration / period)
+    clip = round(motion.duration / period)
+    ticks = clip * max(1, int(repeat))
     if seconds is not None:
         ticks = min(ticks, round(seconds / period))
     walk, run = Walk(), Run()
     schedule = DomainPushes([seed], pushes, period) if pushes else None
     bare = SimDisturbances(robot, [m], [d])
     for k in range(ticks):
-        motion.update(k * period)
+        if k and k % clip == 0:  # the clip again: Reset to where the last play left the robot
+            motion.reset(d.qpos[3:7].copy(), d.qpos[qo:][ours][waist])
+        motion.update((k % clip) * period)
         q, dq = d.qpos[qo:][ours], d.qvel[vo:][ours]
         obs = observation(params, motion, d.qpos[3:7], d.qvel[3:6], q, dq, actions)
         with torch.no_grad():
@@ -94,3 +103,24 @@ def rl_sar_loop(robot, folder, seed: int, seconds: float | None, pushes, watch=N
     run.walked *= period
     run.pushes = [t - period for t in schedule.times[0]] if schedule else []  # the frame's time
     return run
+
+
+def rl_sar_folder(policy: str | Path) -> Path | None:
+    """The rl_sar ``whole_body_tracking`` folder the ONNX ``policy`` sits in (``config.yaml``,
+    its TorchScript ``policy.pt`` and ``base.yaml`` two levels up, as rl_sar lays
+    ``policy/<robot>/whole_body_tracking/<name>``), or None."""
+    folder = Path(policy).resolve().parent
+    if folder.parent.name != "whole_body_tracking":
+        return None
+    if not (folder / "config.yaml").is_file() or not (folder / "policy.pt").is_file():
+        return None
+    return folder if (folder.parent.parent / "base.yaml").is_file() else None
+
+
+#: The ``rl_sar`` stack's ``tracking_loop`` face.
+TRACKING_LOOP = TrackingLoop(
+    what="rl_sar whole_body_tracking (the TorchScript policy.pt on the true state, its "
+    "rl_kp/rl_kd; no estimator, guard or noise)",
+    folder=rl_sar_folder,
+    play=rl_sar_loop,
+)

@@ -22,6 +22,12 @@ before a fall (as :mod:`.rl_sar_tracking`), the joints' error against the policy
 (rad RMS, 29 joints: each tick's angles after its physics against its target, as ``deploy-run``'s
 ``motion phase`` line), the base's travel and the ticks ending with two robot bodies in contact;
 ``--save`` writes each tick's joint angles, base position and phase.
+
+:func:`play` runs the same ``Dance`` on an rl_sar RoboMimic folder (``policy/<robot>/robomimic/
+<name>``: config.yaml, the module of ``model_name``, whose inner network ``.model`` is RoboMimic's)
+on a robot's bare plant (:mod:`sim2real.stacks.loops.bare`): the ``robomimic`` stack's
+``tracking_loop`` face (:data:`TRACKING_LOOP`), the reference a run's hard-limit and
+self-collision ticks are judged against (:mod:`sim2real.eval.soak.own_loop_limits`).
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import yaml
+
+from sim2real.deploy.core.stacks import TrackingLoop
 
 #: A fall (rl_sar_tracking's): pelvis below this height, m, or tilted past FALL_TILT, rad.
 FALL_HEIGHT = 0.35
@@ -176,6 +184,146 @@ def run(
         "self_contact_ticks": int(touching),
         "control_period": timestep * decimation,
     }
+
+
+#: RoboMimic_Deploy's ``Dance.yaml`` values rl_sar's config.yaml does not carry (ccrpRepo/
+#: RoboMimic_Deploy ffe3d40 ``policy/dance/config/Dance.yaml``): the 23 joints its network drives
+#: (SDK order; rl_sar's module scatters them into 29), its history and action sizes.
+DANCE_YAML = {"dof23_index": list(range(19)) + [22, 23, 24, 25], "history_length": 4,
+              "num_actions": 23}  # fmt: skip
+
+
+def robomimic_folder(policy) -> Path | None:
+    """The rl_sar RoboMimic folder (``policy/<robot>/robomimic/<name>``: config.yaml, the
+    TorchScript module its ``model_name`` names, ``base.yaml`` two levels up) the policy file
+    ``policy`` (its ONNX export) sits in, or None."""
+    folder = Path(policy).resolve().parent
+    if folder.parent.name != "robomimic" or not (folder.parent.parent / "base.yaml").is_file():
+        return None
+    try:
+        cfg = next(iter(yaml.safe_load((folder / "config.yaml").read_text()).values()))
+        return folder if (folder / cfg["model_name"]).is_file() else None
+    except (OSError, yaml.YAMLError, AttributeError, KeyError, TypeError, StopIteration):
+        return None
+
+
+def folder_dance(folder) -> tuple[dict, list[str], object]:
+    """(the ``Dance`` config, the joints in its SDK order, the network ``(1, 380) float32 ->
+    (1, 23)``) of an rl_sar RoboMimic ``folder``: ``kps``/``kds`` its ``rl_kp``/``rl_kd``,
+    ``default_angles`` its ``default_dof_pos``, its scales, the motion's length as rl_sar's
+    reader gives it (config.yaml's ``motion_length``, else rl_sar's fsm's), :data:`DANCE_YAML`;
+    the network the module's inner ``.model`` (RoboMimic's ``dance_0605``).
+
+    Raises:
+        ValueError: no motion length for the folder's key (the reader's message).
+    """
+    import torch
+
+    from sim2real.deploy.spec.foreign.rl_sar import LENGTH_KEY, MOTION_LENGTHS
+    from sim2real.stacks.loops.rl_sar_motion import rl_sar_params, robot_dir
+
+    folder = Path(folder).resolve()
+    base, cfg = rl_sar_params(folder)
+    robot = robot_dir(folder)
+    key = f"{robot.name}/{folder.relative_to(robot).as_posix()}"
+    length = cfg.get(LENGTH_KEY, MOTION_LENGTHS.get(key))
+    if length is None:
+        raise ValueError(f"{folder / 'config.yaml'}: no '{LENGTH_KEY}' for {key}")
+    scale = cfg["action_scale"]
+    dance = {
+        **DANCE_YAML, "kps": cfg["rl_kp"], "kds": cfg["rl_kd"],
+        "default_angles": cfg["default_dof_pos"], "ang_vel_scale": cfg["ang_vel_scale"],
+        "dof_pos_scale": cfg["dof_pos_scale"], "dof_vel_scale": cfg["dof_vel_scale"],
+        "action_scale": scale[0] if isinstance(scale, list) else scale,
+        "motion_length": float(length),
+    }  # fmt: skip
+    inner = torch.jit.load(str(folder / cfg["model_name"])).model
+
+    def net(obs):
+        with torch.no_grad():
+            return inner(torch.from_numpy(obs)).numpy()
+
+    joints = [base["joint_names"][i] for i in cfg["joint_mapping"]]
+    return dance, joints, net
+
+
+def play(robot, folder, seed: int, seconds: float | None, pushes, watch=None, repeat: int = 1):
+    """One play of an rl_sar RoboMimic ``folder``'s dance by RoboMimic_Deploy's ``Dance`` (module
+    docstring) on ``robot``'s bare plant (its ``plant_model("torque")``, the PD law of
+    ``kps``/``kds`` at every physics step, the robot's own control period): the home pose held
+    ``SETTLE`` s at the dance's default angles, then ``T / 0.02`` ticks, at most ``seconds`` s
+    (None: all), under ``pushes`` (a :class:`~sim2real.eval.world.pushes.PushRanges`; None: none)
+    seeded by ``seed``. ``watch(d, target)`` sees each tick's true state and the PD target
+    (robot order, rad) before the physics steps. ``repeat``: plays back to back, the dance
+    entered again (``Dance.enter``) where the last left the robot. Returns a
+    :class:`~sim2real.stacks.loops.bare.Run` (``walked``: s of the dance played in all).
+
+    Raises:
+        ValueError: a joint of the folder the robot lacks, or no motion length.
+    """
+    from sim2real.deploy.backends.sim.disturbances import SimDisturbances
+    from sim2real.eval.world.pushes import DomainPushes
+    from sim2real.stacks.loops.bare import Run, bare_plant, past_hard_limit, true_fall
+    from sim2real.stacks.loops.walk import Walk
+
+    cfg, joints, net = folder_dance(folder)
+    missing = [j for j in joints if j not in robot.joint_names]
+    if missing:
+        raise ValueError(f"{folder}: joints {missing} are no joints of the robot")
+    ours = np.array([robot.joint_names.index(j) for j in joints])  # SDK slot -> ours
+    dance = Dance(cfg, net)
+    kp, kd = np.zeros(robot.n_joints), np.zeros(robot.n_joints)
+    kp[ours], kd[ours] = dance.kps, dance.kds
+    target = np.array(robot.home, dtype=float)
+    target[ours] = dance.default
+    plant = bare_plant(robot, (kp, kd, target))
+    d, period = plant.d, robot.control_period
+    qo, vo = robot.qpos_offset, robot.qvel_offset
+    for _ in range(round(SETTLE / period)):
+        plant.advance()
+    dance.enter()
+    once = int(round(dance.motion_length / PHASE_STEP))
+    ticks = once * max(1, int(repeat))
+    if seconds is not None:
+        ticks = min(ticks, round(seconds / period))
+    walk, run = Walk(), Run()
+    schedule = DomainPushes([seed], pushes, period) if pushes else None
+    disturb = SimDisturbances(robot, [plant.m], [d])
+    for k in range(ticks):
+        if k and k % once == 0:
+            dance.enter()
+        out = dance.run(d.qpos[qo:][ours].copy(), d.qvel[vo:][ours].copy(), d.qvel[3:6].copy(),
+                        gravity_orientation(d.qpos[3:7]))  # fmt: skip
+        target[ours] = out
+        plant.write(target)
+        if watch is not None:
+            watch(d, target)
+        plant.advance()
+        run.walked = walk.ticks = k + 1
+        run.past_limit += past_hard_limit(robot, d.qpos[qo:])
+        if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
+            run.fell_at, run.cause = (k + 1) * period, "fall"
+            break
+        if schedule is not None:
+            schedule(walk, disturb)
+    run.walked *= period
+    run.pushes = [t - period for t in schedule.times[0]] if schedule else []
+    return run
+
+
+#: s the dance's default angles are held before it starts in :func:`play`: :func:`run`'s
+#: ``--settle`` default (held longer by its weak ankle gains, 20 N m/rad, the G1 tips forward:
+#: 27 deg after 0.8 s on unitree_mujoco's g1_29dof.xml).
+SETTLE = 0.2
+
+
+#: The ``robomimic`` stack's ``tracking_loop`` face.
+TRACKING_LOOP = TrackingLoop(
+    what="RoboMimic_Deploy's Dance runtime (the module's inner network on the true state, "
+    "rl_sar's rl_kp/rl_kd; no estimator, guard or noise)",
+    folder=robomimic_folder,
+    play=play,
+)
 
 
 def main(argv=None) -> int:

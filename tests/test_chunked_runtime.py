@@ -14,7 +14,7 @@ import json
 import numpy as np
 import pytest
 
-from sim2real.deploy.cli.deploy_run import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT
+from sim2real.deploy.cli.run_verdict import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT
 from sim2real.deploy.cli.deploy_run import deploy_run_main as deploy_run
 from sim2real.deploy.observe.chunk_jerk import boundary_jerk
 from sim2real.robots import load_robot
@@ -240,6 +240,8 @@ def test_an_export_whose_camera_is_not_rgb_or_the_mjcf_lacks_is_refused(tmp_path
 
 
 # ---------------------------------------------------------------- the Feetech bus emulator
+@pytest.mark.wallclock
+@pytest.mark.alone  # the bus on a pty misses replies beside another process at normal priority
 def test_a_chunked_camera_policy_on_the_feetech_emulator(tmp_path):
     """deploy-run --backend feetech against the bus emulator backed by the MuJoCo plant, the
     camera from a recorded video: the chunks' cadence and the smoother's bound hold on the

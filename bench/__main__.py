@@ -50,7 +50,12 @@ from bench.targets import (  # noqa: E402
     history_line,
 )
 
+#: The results file of a checkout (and of an editable install, ``pip install -e .``): beside
+#: the benchmarks, with the trend file ``history.jsonl`` and the baselines.
 RESULTS = Path(__file__).resolve().parent / "results.json"
+#: The results file's name in the working folder, where :data:`RESULTS`'s folder is not writable
+#: (a wheel's install in a system's site-packages).
+RESULTS_NAME = "results.json"
 SCHEMA = "sim2real-deploy/bench/1"
 ITEMS = (
     "plant",
@@ -154,8 +159,23 @@ def _parser() -> argparse.ArgumentParser:
         help="wallclock configurations to run: sleep, hybrid, spin, hybrid+fifo, spin+fifo, "
         "hybrid+fifo+cpu (these by default), spin+fifo+cpu",
     )
-    p.add_argument("--out", type=Path, default=RESULTS, help="results file (JSON)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="results file (JSON; history.jsonl is written beside it); default: bench/results.json "
+        "of the checkout, or ./results.json where the installed bench/ is not writable",
+    )
     return p
+
+
+def default_out(results: Path = RESULTS) -> Path:
+    """The results file of a run without ``--out``: ``results`` (the checkout's
+    ``bench/results.json``) where its folder is writable, else :data:`RESULTS_NAME` in the
+    working folder."""
+    if os.access(results.parent, os.W_OK):
+        return results
+    return Path.cwd() / RESULTS_NAME
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -163,6 +183,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ``settings`` (FULL or QUICK with the options' overrides); a bad option exits (argparse)."""
     p = _parser()
     args = p.parse_args(argv)
+    if args.out is None:
+        args.out = default_out()
     items = [i for chunk in (args.only or [",".join(DEFAULT_ITEMS)]) for i in _csv(chunk)]
     unknown = sorted(set(items) - set(ITEMS))
     if unknown:

@@ -27,9 +27,8 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-from bench.common import BenchPolicy
+from bench.common import POLICIES, BenchPolicy
 
-REPO = Path(__file__).resolve().parents[1]
 #: go2's command in every busy run: 0.5 m/s forward, as ``make hil ROBOT=go2``
 WALK = ("--command", "0.5,0,0")
 
@@ -76,7 +75,7 @@ def shipped_go2(folder: Path):
     ``path``)."""
     from sim2real.deploy.export import export_policy
 
-    path = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=folder / "go2.onnx")
+    path = export_policy(POLICIES / "go2.pt", out=folder / "go2.onnx")
     from sim2real.robots.loading import ROBOTS_DIR
 
     robot = SimpleNamespace(name="go2", directory=ROBOTS_DIR / "go2")
@@ -117,7 +116,7 @@ def measure(arm6: BenchPolicy, folder: Path, duration: float) -> dict:
     refused = fifo_refused(LOOP_PRIORITY)
     rt = () if refused else ("--rt-priority", str(LOOP_PRIORITY))
     go2 = shipped_go2(folder)
-    so101 = export_policy(REPO / "sim2real" / "policies" / "so101.pt", out=folder / "so101.onnx")
+    so101 = export_policy(POLICIES / "so101.pt", out=folder / "so101.onnx")
     burners = os.cpu_count() or 1
     procs = burner_processes(burners)
     rows = []

@@ -20,9 +20,13 @@ from typing import Any
 
 import numpy as np
 
+import sim2real.policies
 from sim2real.deploy.core.latency import BIN_NS, BINS, LatencyHistogram
 from sim2real.robots.files import atomic_write
 
+#: The shipped policies' folder (``sim2real/policies``, package data: in a checkout and in an
+#: installed wheel alike).
+POLICIES = Path(sim2real.policies.__file__).resolve().parent
 #: Hidden layers and seed of the benchmark policy (a deterministic MLPActor, ELU).
 POLICY_HIDDEN = (64, 64)
 POLICY_SEED = 0
@@ -155,9 +159,7 @@ def make_policy(
         path = Path(onnx).resolve()
         return BenchPolicy(robot, OnnxPolicy(path, robot).spec, None, path, 0.0, given=True)
 
-    import sim2real.policies
-
-    src = Path(sim2real.policies.__file__).resolve().parent / f"{robot.name}.pt"
+    src = POLICIES / f"{robot.name}.pt"
     if not src.is_file():
         raise FileNotFoundError(f"bench: legged robot {robot.name} has no shipped policy {src}")
     t = time.perf_counter()

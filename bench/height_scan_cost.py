@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+from bench.common import POLICIES
 
 
 def tick_costs(robot, policy_path: Path, ticks: int) -> np.ndarray:
@@ -57,7 +57,7 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     out = args.out or Path(tempfile.mkdtemp())
     robot = load_robot("go2")
-    walker = export_policy(REPO / "sim2real" / "policies" / "go2.pt", out=out / "go2.onnx")
+    walker = export_policy(POLICIES / "go2.pt", out=out / "go2.onnx")
     scan, _ = add_unused_scan(walker, out / "go2_scan.onnx")
     plant = SimBackend(robot, "position", envs=1)
     scanner = PlantHeightScanner(plant, HeightScanPattern())

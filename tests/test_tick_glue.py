@@ -3,7 +3,9 @@ temperature report (:func:`~sim2real.deploy.backends.sim.sensors_kernel.temperat
 against ``np.round(x / res) * res``, halves included), the command copy
 (:func:`~sim2real.deploy.kernels.copy_finite`) and ``SimBackend.write`` bound to a buffer
 written twice (a NaN still raises and leaves the command in force), and the smoother's rows
-written through their ctypes views (its command against the numpy reference's)."""
+written through their ctypes views (its command against the numpy reference's), and the action
+the drives ran (:func:`~sim2real.deploy.runtime.supervision_kernel.action_ran`: the tick's copy,
+mode comparison and zeroing of the envs not RUNNING)."""
 
 from __future__ import annotations
 
@@ -12,7 +14,26 @@ import pytest
 
 from sim2real.deploy.backends.sim.plant import NonFiniteCommandError, SimBackend
 from sim2real.deploy.backends.sim.sensors_kernel import temperature_report
+from sim2real.deploy.core.modes import Mode
 from sim2real.deploy.kernels import copy_finite
+from sim2real.deploy.runtime.supervision_kernel import action_ran
+
+
+def test_the_action_the_drives_ran_equals_the_ticks_numpy():
+    """An env RUNNING keeps the policy's (screened) action as its last action; an env in any
+    other mode ran the runtime's override, and its last action reads 0."""
+    rng = np.random.default_rng(5)
+    action = rng.uniform(-2.0, 2.0, (6, 4)).astype(np.float32)
+    mode = np.array([*(m.value for m in Mode), Mode.RUNNING], dtype=np.int8)  # every mode
+    assert (mode == Mode.RUNNING).any() and (mode != Mode.RUNNING).any()
+    expected, idle_expected = np.full((6, 4), 9.0), np.zeros(6, dtype=bool)
+    expected[:] = action
+    if np.not_equal(mode, Mode.RUNNING, out=idle_expected).any():
+        np.copyto(expected, 0.0, where=idle_expected[:, None])
+    last, idle = np.full((6, 4), 9.0), np.ones(6, dtype=bool)
+    action_ran(last, action, mode, idle, int(Mode.RUNNING))
+    assert last.tobytes() == expected.tobytes()
+    np.testing.assert_array_equal(idle, idle_expected)
 
 
 @pytest.mark.parametrize("resolution", [1.0, 0.5, 0.1, 0.25])

@@ -40,6 +40,24 @@ def quat_mul_rows(a, b, out) -> None:
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
+def quat_mul_finite_rows(a, b, out) -> None:
+    """``out[e]`` (4,) = the Hamilton product ``a[e] b`` of the (k, 4) float64 quaternions ``a``
+    and one (4,) float64 ``b``, for each row of ``a`` whose four components are finite; the other
+    rows of ``out`` are left as they are (:func:`quat_mul_rows`' expressions, the same numbers)."""
+    bw, bx, by, bz = b[0], b[1], b[2], b[3]
+    for e in range(a.shape[0]):
+        aw, ax, ay, az = a[e, 0], a[e, 1], a[e, 2], a[e, 3]
+        if not (math.isfinite(aw) and math.isfinite(ax) and math.isfinite(ay)):
+            continue
+        if not math.isfinite(az):
+            continue
+        out[e, 0] = aw * bw - ax * bx - ay * by - az * bz
+        out[e, 1] = aw * bx + ax * bw + ay * bz - az * by
+        out[e, 2] = aw * by - ax * bz + ay * bw + az * bx
+        out[e, 3] = aw * bz + ax * by - ay * bx + az * bw
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def _norm(v0: float, v1: float, v2: float, v3: float) -> float:
     """``np.linalg.norm`` of a row of 4 (3 with ``v3 = 0``): numpy's sequential sum of squares."""
     return math.sqrt(v0 * v0 + v1 * v1 + v2 * v2 + v3 * v3)

@@ -22,6 +22,7 @@ import numpy as np
 import pinocchio as pin
 
 from sim2real.deploy.core.attitude import quat_multiply
+from sim2real.deploy.core.attitude_kernel import quat_mul_finite_rows
 from sim2real.deploy.core.modes import RAMP_IN, RUNNING, SAFE_STOP
 from sim2real.deploy.core.phase_clock import phase_clock_for
 from sim2real.deploy.core.state import RobotState
@@ -55,6 +56,9 @@ class LeggedTick:
         self.stages = (base_estimator, fall_detector)
         self.compiled = True
         self.bound = None
+        #: ``(imu_orientation, sensed, call)``: :meth:`sense`'s compiled call bound to those
+        #: arrays (None: numpy's path for arrays it does not take)
+        self._sense_bound: tuple | None = None
         #: the backend's ``damp(envs)`` (drivers with a damping mode of their own, e.g. a
         #: Unitree robot's: kp 0, a damping kd), told every tick which envs damp
         self._backend_damp = getattr(runtime.backend, "damp", None)
@@ -91,11 +95,28 @@ class LeggedTick:
         quat = frame.imu_orientation
         if quat is None:
             return
+        bound = self._sense_bound
+        if bound is None or bound[0] is not quat or bound[1] is not sensed:
+            bound = self._sense_bound = (quat, sensed, self._sense_call(quat, sensed))
+        if bound[2] is not None:  # the same products, one compiled call (quat_mul_finite_rows)
+            bound[2]()
+            return
         ok = np.isfinite(quat).all(axis=1)
         if ok.all():
             sensed[:] = quat_multiply(quat, self._site_to_base)
         elif ok.any():
             sensed[ok] = quat_multiply(quat[ok], self._site_to_base)
+
+    def _sense_call(self, quat: np.ndarray, sensed: np.ndarray):
+        """:meth:`sense`'s products as one compiled call bound to ``quat`` and ``sensed``
+        (:func:`~sim2real.deploy.core.attitude_kernel.quat_mul_finite_rows`), or None where one
+        is not a C-contiguous (envs, 4) float64 array (numpy's path)."""
+        shape = (self.rt.envs, 4)
+        if not (fits(quat, np.float64, shape) and fits(sensed, np.float64, shape)):
+            return None
+        if not sensed.flags.writeable:
+            return None
+        return bind(quat_mul_finite_rows, quat, self._site_to_base, sensed)
 
     def restart(self, t, envs: np.ndarray) -> None:
         """``Runtime.restart``: the envs of ``envs`` upright again at time ``t``."""

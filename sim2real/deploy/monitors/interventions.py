@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.monitors import kernel as mk
 from sim2real.deploy.monitors.monitor_state import MonitorState
@@ -147,7 +148,7 @@ class InterventionMonitor(MonitorState):
         """Count this tick's envs lying down (:attr:`down`) in :attr:`down_ticks`; nothing
         without :attr:`down`. Once per tick, after :meth:`count_moved` (a compiled tick calls
         it after its own comparison)."""
-        if self.down is not None:
+        if self.down is not None and any_true(self.down):  # none down: nothing to add
             self.down_ticks += self.down
 
     def kernel_arrays(self) -> dict[str, np.ndarray]:

@@ -27,7 +27,7 @@ from sim2real.deploy.core.modes import (
     Mode,
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
-from sim2real.deploy.kernels.calls import bind
+from sim2real.deploy.kernels.calls import bind, fits
 from sim2real.deploy.runtime import fused_kernel as fk
 from sim2real.deploy.runtime import supervision_kernel as sv
 from sim2real.deploy.runtime.fused import TableCalls
@@ -174,6 +174,8 @@ class CompiledSupervision(TableCalls):
         #: the action array the screen's table was built over (:meth:`_bind_screen`; None: no
         #: table, the kernel is called with its arguments) and the last action array seen
         self._screen_action = self._screen_seen = None
+        #: ``(last_action, action, idle, call)``: :meth:`action_ran`'s call bound to those arrays
+        self._ran: tuple | None = None
 
     def _supervise_args(self, state: RobotState, copy: bool = False) -> tuple:
         """Arguments of :func:`sim2real.deploy.runtime.supervision_kernel.supervise` (the written arrays
@@ -299,3 +301,28 @@ class CompiledSupervision(TableCalls):
                 self.smoother.safe_stop(self.flags[sv.NEW_STOP].copy())
             if code & sv.SCREEN_OVERRIDE:
                 self._override(self._target, state)
+
+    def action_ran(self, state: RobotState, action: np.ndarray, idle: np.ndarray) -> bool:
+        """``state.last_action`` = the action the drives ran: ``action`` (envs, n) float32 for
+        the RUNNING envs, 0 for the others, which ``idle`` (envs,) bool marks; one kernel
+        (:func:`sim2real.deploy.runtime.supervision_kernel.action_ran`) bound to these arrays
+        (made again when one is another array). Returns False, having done nothing, where one
+        does not fit the kernel (the caller's numpy path)."""
+        last, bound = state.last_action, self._ran
+        if bound is None or bound[0] is not last or bound[1] is not action or bound[2] is not idle:
+            call = None
+            envs, n = self.envs, self.n
+            if (
+                fits(last, np.float64, (envs, n))
+                and fits(action, np.float32, (envs, n))
+                and fits(idle, np.bool_, (envs,))
+                and fits(self.mode, np.int8, (envs,))
+                and last.flags.writeable
+                and idle.flags.writeable
+            ):
+                call = bind(sv.action_ran, last, action, self.mode, idle, int(Mode.RUNNING))
+            bound = self._ran = (last, action, idle, call)
+        if bound[3] is None:
+            return False
+        bound[3]()
+        return True

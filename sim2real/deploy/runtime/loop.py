@@ -426,9 +426,11 @@ class Runtime:
         # the action the drives ran: an env not RUNNING ran the runtime's override, not the
         # policy's, whose output fed back to itself would grow unchecked (a policy reading its
         # last action, lying damped for seconds)
-        state.last_action[:] = action
-        if any_true(np.not_equal(self.mode, RUNNING, out=self._idle)):
-            np.copyto(state.last_action, 0.0, where=self._idle_rows)
+        compiled = self._compiled
+        if compiled is None or not compiled.action_ran(state, action, self._idle):
+            state.last_action[:] = action
+            if any_true(np.not_equal(self.mode, RUNNING, out=self._idle)):
+                np.copyto(state.last_action, 0.0, where=self._idle_rows)
         self.ticks += 1
         self.time += self.dt
         if self.telemetry is not None:

@@ -311,3 +311,15 @@ def screen_action(
             else:
                 target[e, j] = 0.0
     return code
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def action_ran(last, action, mode, idle, running: int) -> None:
+    """The action the drives ran into ``last`` (envs, n) float64: ``action`` (envs, n) float32
+    for each env whose ``mode`` (envs,) int8 is ``running``, 0 for the others, which ``idle``
+    (envs,) bool marks (``Runtime.tick``'s copy, comparison and zeroing, the same numbers)."""
+    for e in range(last.shape[0]):
+        stop = mode[e] != running
+        idle[e] = stop
+        for j in range(last.shape[1]):
+            last[e, j] = 0.0 if stop else action[e, j]

@@ -21,8 +21,9 @@ tells this verdict about every one). A failure (a hard-limit violation's onset, 
 fall, a latch without an injected cause) is counted by the per-frame camera faults of the
 ``WINDOW`` s before the supervision step that saw it (a missed goal: of the goal's period, or
 ``camera stop after <fault>`` when a stale-camera stop fell in it), the first
-``FAILURE_SAMPLE`` kept. A stop counts for its first fault (frozen, dropped, late). The session-wide faults (a covered lens, a knocked mount, a
-lighting change) act throughout and are listed once. Hooks: ``SessionBatch`` makes it and calls
+``FAILURE_SAMPLE`` kept. A stop counts for its first fault (frozen, dropped, late). The
+session-wide faults (a covered lens, a knocked mount, a lighting change) act throughout and
+are listed once. Hooks: ``SessionBatch`` makes it and calls
 :meth:`~CameraVerdict.step` each supervision step; the session's checkpoint holds its state.
 """
 

@@ -19,8 +19,8 @@ joined by ``+``, or ``none``) and the first ``STOP_SAMPLE`` of each session kept
 runtime's verdict (the runtime keeps ``MAX_RECORDS`` per batch; :attr:`StaleStops.on_record`
 tells this verdict about every one). A failure (a hard-limit violation's onset, a missed goal, a
 fall, a latch without an injected cause) is counted by the per-frame camera faults of the
-``WINDOW`` s before the supervision step that saw it (a missed goal: of the goal's period, or
-``camera stop after <fault>`` when a stale-camera stop fell in it), the first
+``WINDOW`` s before the supervision step that saw it (a missed goal: of the goal's last period,
+or ``camera stop after <fault>`` when a stale-camera stop interrupted the goal), the first
 ``FAILURE_SAMPLE`` kept. A stop counts for its first fault (frozen, dropped, late). The
 session-wide faults (a covered lens, a knocked mount, a lighting change) act throughout and
 are listed once. Hooks: ``SessionBatch`` makes it and calls
@@ -179,7 +179,8 @@ class CameraVerdict:
             if goals is not None:
                 missed = goals.missed[e]
                 for rec in missed[min(seen["missed"], len(missed)) :]:
-                    window = max(rec["t_s"] - rec["issued_s"], WINDOW)
+                    # its running period: a stop gives the goal its period again
+                    window = max(min(rec["t_s"] - rec["issued_s"], goals.period), WINDOW)
                     recent = self._recent(e, rec["t_s"], window)
                     last = st["stops"]["last_t_s"]  # a stale-camera stop in the goal's period
                     stopped = last is not None and rec["issued_s"] <= last <= rec["t_s"]

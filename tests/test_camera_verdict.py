@@ -139,7 +139,9 @@ def _batch():
         mode=np.full(1, 2, np.int8),
         stale_stops=SimpleNamespace(on_record=None),
     )
-    session = SimpleNamespace(e=0, latches=[], config=SimpleNamespace(operator_reset=10.0))
+    session = SimpleNamespace(
+        e=0, latches=[], fault_events=[], config=SimpleNamespace(operator_reset=10.0)
+    )
     goals = SimpleNamespace(missed=[[]], missed_dropped=np.zeros(1, int), period=4.0)
     return SimpleNamespace(
         rt=rt,
@@ -172,6 +174,14 @@ def test_each_failure_is_counted_by_the_camera_fault_before_it():
     assert counts["missed_goal"] == {"none": 1, "camera stop after frozen": 1}
     assert counts["latched"] == {"none": 1} and s.latches[0]["injected"] is None
     assert s.latches[0]["camera"] == "none"
+    # the soak's own faults: one latched in the camera stop's window, one held, one long after
+    s.fault_events += [
+        {"start_s": 13.8, "duration_s": 0.02, "response": "latched"},
+        {"start_s": 13.9, "duration_s": 0.02, "response": "held"},
+        {"start_s": 40.0, "duration_s": 0.02, "response": "latched"},
+    ]
+    verdict.step(b.rt, 45.0)
+    assert [ev["camera_stop"] for ev in s.fault_events] == ["camera: frozen", None, None]
 
 
 def _camera_stop(t: float, frozen: int = 0) -> dict:

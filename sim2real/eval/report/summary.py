@@ -302,6 +302,12 @@ def verdict_lines(v: dict) -> list[str]:
             f"{fr['frozen_spells']} frozen spells met); latched {after['count']}, each reset by "
             f"the operator after {after['operator_reset_s']:g} s, running again after "
             f"{after['ran_again']} of them (stops kept: the first {kept}, all counted)"
+            + (
+                f"; {v['own_faults_judged_with_a_camera_stop']} of the soak's own faults were "
+                "judged with a camera stop in their window"
+                if v.get("own_faults_judged_with_a_camera_stop")
+                else ""
+            )
             if stopped
             else "none"
         ),

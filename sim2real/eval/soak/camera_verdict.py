@@ -23,7 +23,8 @@ fall, a latch without an injected cause) is counted by the per-frame camera faul
 or ``camera stop after <fault>`` when a stale-camera stop interrupted the goal), the first
 ``FAILURE_SAMPLE`` kept. A stop counts for its first fault (frozen, dropped, late). The
 session-wide faults (a covered lens, a knocked mount, a lighting change) act throughout and
-are listed once. Hooks: ``SessionBatch`` makes it and calls
+are listed once. A fault of the soak's own schedule whose response counts a stale-camera stop
+in its window says so (its event's ``camera_stop``). Hooks: ``SessionBatch`` makes it and calls
 :meth:`~CameraVerdict.step` each supervision step; the session's checkpoint holds its state.
 """
 
@@ -35,6 +36,8 @@ import numpy as np
 
 from sim2real.deploy.core.modes import RUNNING
 from sim2real.deploy.core.stateful import env_list, read_records, records_json
+from sim2real.eval.soak.session import ARM_LEAD
+from sim2real.eval.world.fault_schedule import FAULT_SETTLE
 
 #: s of camera faults before a failure that it followed (the plant camera's ``recent`` window).
 WINDOW = 1.0
@@ -45,6 +48,9 @@ FAILURE_SAMPLE = 32
 #: s within which a stale-camera stop told at its tick is the safe stop a supervision step
 #: sees (its period is 0.1 s: ``sim2real.eval.soak.batch.SUPERVISE_PERIOD``).
 STEP_S = 0.15
+#: Stale-camera stops remembered per session to tell which of the soak's own faults a camera
+#: stop was judged with (their windows last seconds; our choice).
+RECENT_STOPS = 8
 #: The failures a session's camera verdict attributes.
 FAILURES = ("hard_violation", "missed_goal", "fall", "latched")
 #: The plant camera's per-frame fault counts (``PlantCamera.recent``) -> their name here.
@@ -78,7 +84,8 @@ def _fresh() -> dict:
     return {
         "stops": {"count": 0, "by_fault": {}, "sample": [], "last_t_s": None, "last": "none"},
         "failures": {"counts": {f: {} for f in FAILURES}, "sample": [], "dropped": 0},
-        "seen": {"hard": 0, "missed": 0, "falls": 0, "latches": 0, "stops": 0},
+        "seen": {"hard": 0, "missed": 0, "falls": 0, "latches": 0, "stops": 0, "events": 0},
+        "recent_stops": [],
         "hard_before": False,
         "last_stop": None,
     }
@@ -124,6 +131,8 @@ class CameraVerdict:
         stops["count"] += 1
         stops["by_fault"][label] = stops["by_fault"].get(label, 0) + 1
         stops["last_t_s"], stops["last"] = record["t_s"], label
+        recent = self.state[e]["recent_stops"]
+        recent[:] = [*recent[-(RECENT_STOPS - 1) :], [record["t_s"], label]]
         if len(stops["sample"]) < STOP_SAMPLE:
             stops["sample"].append(
                 {
@@ -172,6 +181,9 @@ class CameraVerdict:
                 latch = s.latches[-1]
                 if "running_again_s" not in latch and int(rt.mode[e]) == RUNNING:
                     latch["running_again_s"] = round(t, 6)
+            for ev in s.fault_events[seen["events"] :]:  # the soak's own faults, judged
+                self._fault_event(st, ev)
+            seen["events"] = len(s.fault_events)
             now = int(hard[e])
             if now > seen["hard"] and not st["hard_before"]:
                 self._failure(e, "hard_violation", t, self._recent(e, t))
@@ -194,6 +206,16 @@ class CameraVerdict:
                 for _ in range(falls - seen["falls"]):
                     self._failure(e, "fall", t, self._recent(e, t))
                 seen["falls"] = falls
+
+    @staticmethod
+    def _fault_event(st: dict, ev: dict) -> None:
+        """A fault of the soak's own schedule just judged: ``camera_stop`` names the camera
+        fault of a stale-camera stop in its window (armed to judged), whose stop its response
+        counts (``latched``, ``resumed``, ``safe_stop``); None without one."""
+        start = ev["start_s"] - ARM_LEAD
+        end = ev["start_s"] + ev["duration_s"] + FAULT_SETTLE
+        hits = [label for t, label in st["recent_stops"] if start <= t <= end]
+        ev["camera_stop"] = f"camera: {hits[-1]}" if hits and ev["response"] != "held" else None
 
     def _latch(self, e: int, latch: dict, t: float) -> None:
         """A new latch: ``injected`` (stopped safely) when it followed a stale-camera stop that
@@ -236,6 +258,7 @@ class CameraVerdict:
             for kind in frames
         }
         injected = [x for x in s.latches if x.get("injected")]
+        own = [ev for ev in s.fault_events if ev.get("camera_stop")]
         return {
             "survived": [
                 *(k for k, n in frames.items() if n and not after[k]),
@@ -254,6 +277,8 @@ class CameraVerdict:
                 "ran_again": sum(1 for x in injected if x.get("running_again_s") is not None),
                 "operator_reset_s": s.config.operator_reset,
             },
+            # the soak's own faults whose response was a camera's stop in their window
+            "own_faults_judged_with_a_camera_stop": len(own),
             "failures": {
                 "counts": st["failures"]["counts"],
                 "sample": st["failures"]["sample"],

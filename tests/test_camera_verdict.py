@@ -27,11 +27,10 @@ from tests.test_camera_arm import POLICY
 FREEZING = CameraFaults(freeze=0.05, freeze_frames=10)
 
 
-@pytest.fixture(scope="module")
-def frozen_session(tmp_path_factory):
-    """One 14-s session of the camera policy whose camera freezes (:data:`FREEZING`), the
-    operator resetting a latch after 1 s; the runtime's and the verdict's kept stops limited
-    to 1 each. Returns ``(result, batch)``."""
+def _frozen_batch(out, resume=False):
+    """The batch of one 14-s session of the camera policy whose camera freezes
+    (:data:`FREEZING`), checkpointed every 3 s, the operator resetting a latch after 1 s; the
+    runtime's and the verdict's kept stops limited to 1 each. Returns ``(result, batch)``."""
     from sim2real.deploy.runtime import stale
     from sim2real.eval.soak import camera_faults
     from sim2real.eval.soak.batch import SessionBatch
@@ -41,14 +40,23 @@ def frozen_session(tmp_path_factory):
     mp.setattr(stale, "MAX_RECORDS", 1)
     mp.setattr(cv, "STOP_SAMPLE", 1)
     try:
-        config = replace(
-            short_session("arm3", POLICY, hours=14.0 / 3600), seed=3, operator_reset=1.0
-        )
-        batch = SessionBatch([config], tmp_path_factory.mktemp("soak"), progress=False)
+        config = replace(short_session("arm3", POLICY, hours=14.0 / 3600), seed=3)
+        batch = SessionBatch([config], out, progress=False, resume=resume)
         (result,) = batch.run()
     finally:
         mp.undo()
     return result, batch
+
+
+@pytest.fixture(scope="module")
+def frozen_out(tmp_path_factory):
+    return tmp_path_factory.mktemp("soak")
+
+
+@pytest.fixture(scope="module")
+def frozen_session(frozen_out):
+    """:func:`_frozen_batch` run once."""
+    return _frozen_batch(frozen_out)
 
 
 @needs_gl
@@ -109,6 +117,14 @@ def test_the_console_names_what_the_camera_survived_what_stopped_it_and_after_wh
     assert f"camera verdict stopped it safely: frozen frames {stops} time" in lines
     assert "(stops kept: the first 1, all counted)" in lines
     assert "camera verdict failures by the camera fault before them" in lines
+
+
+@needs_gl
+def test_a_resumed_session_keeps_its_camera_verdict(frozen_session, frozen_out):
+    result, _ = frozen_session
+    again, _ = _frozen_batch(frozen_out, resume=True)  # from its checkpoint at 12 s
+    assert again["camera"]["verdict"] == result["camera"]["verdict"]
+    assert again["runtime"]["latches"] == result["runtime"]["latches"]
 
 
 def test_fault_labels_name_the_per_frame_faults_and_the_session_wide_ones_in_words():

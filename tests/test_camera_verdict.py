@@ -190,14 +190,16 @@ def test_each_failure_is_counted_by_the_camera_fault_before_it():
     assert counts["missed_goal"] == {"none": 1, "camera stop after frozen": 1}
     assert counts["latched"] == {"none": 1} and s.latches[0]["injected"] is None
     assert s.latches[0]["camera"] == "none"
-    # the soak's own faults: one latched in the camera stop's window, one held, one long after
+    # the soak's own faults: latched in the camera stop's window; held, or met while already
+    # stopped, in it; latched long after it
     s.fault_events += [
         {"start_s": 13.8, "duration_s": 0.02, "response": "latched"},
         {"start_s": 13.9, "duration_s": 0.02, "response": "held"},
+        {"start_s": 14.1, "duration_s": 0.02, "response": "not_running"},
         {"start_s": 40.0, "duration_s": 0.02, "response": "latched"},
     ]
     verdict.step(b.rt, 45.0)
-    assert [ev["camera_stop"] for ev in s.fault_events] == ["camera: frozen", None, None]
+    assert [ev["camera_stop"] for ev in s.fault_events] == ["camera: frozen", None, None, None]
 
 
 def _camera_stop(t: float, frozen: int = 0) -> dict:

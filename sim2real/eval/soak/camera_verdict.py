@@ -215,7 +215,8 @@ class CameraVerdict:
         start = ev["start_s"] - ARM_LEAD
         end = ev["start_s"] + ev["duration_s"] + FAULT_SETTLE
         hits = [label for t, label in st["recent_stops"] if start <= t <= end]
-        ev["camera_stop"] = f"camera: {hits[-1]}" if hits and ev["response"] != "held" else None
+        stopped = ev["response"] in ("latched", "resumed", "safe_stop")  # not held, not_running
+        ev["camera_stop"] = f"camera: {hits[-1]}" if hits and stopped else None
 
     def _latch(self, e: int, latch: dict, t: float) -> None:
         """A new latch: ``injected`` (stopped safely) when it followed a stale-camera stop that

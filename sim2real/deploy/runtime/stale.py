@@ -55,6 +55,9 @@ class StaleStops:
             its own limit, :mod:`sim2real.deploy.runtime.camera`), ``this_tick`` (the frame's
             readings of those joints), ``our_side``, ``other_side`` (the backend's context) and ``verdict``.
         dropped: Stale stops past ``MAX_RECORDS``, counted only.
+        on_record: None, or ``(record) -> None`` told every stop's record, those past
+            ``MAX_RECORDS`` too (a soak counts each session's stops by what caused them,
+            :mod:`sim2real.eval.soak.camera_verdict`); the record is built for it, not kept.
     """
 
     def __init__(self, runtime, supervision):
@@ -62,15 +65,20 @@ class StaleStops:
         supervision.on_stale_stop = self.record
         self.records: list[dict] = []
         self.dropped = 0
+        self.on_record = None
 
     def record(self, envs: np.ndarray) -> None:
         """Record the ``stale_sensor`` stop of each env of ``envs`` ((envs,) bool mask), made in
         this tick; called by the supervision at the stop (allocates: a stop is rare)."""
         for e in np.flatnonzero(envs):
-            if len(self.records) >= MAX_RECORDS:
+            full = len(self.records) >= MAX_RECORDS
+            record = None if full and self.on_record is None else self._record(int(e))
+            if self.on_record is not None:
+                self.on_record(record)
+            if full:
                 self.dropped += 1
-                continue
-            self.records.append(self._record(int(e)))
+            else:
+                self.records.append(record)
 
     def _record(self, e: int) -> dict:
         rt = self.runtime

@@ -37,7 +37,9 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     """The checks of one session result: ``{name: {"passed": bool, "message": str}}``.
 
     ``no_hard_violation`` (no true-state hard-limit violation, standing or lying down after a
-    stop, and no hard-limit safe stop of the runtime), ``no_latched_fault``,
+    stop, and no hard-limit safe stop of the runtime), ``no_latched_fault`` (a latch whose
+    ``injected`` names the injected fault that stopped the robot, a camera's
+    (:mod:`sim2real.eval.soak.camera_verdict`), is counted in the message, not failed),
     ``no_over_temperature`` (a winding above its maximum, or an over-temperature safe stop),
     ``success_rate`` (at least ``min_success_rate`` over the session), ``window_success`` (at
     least ``min_window_success_rate`` in every window of ``window_minutes`` with a goal),
@@ -49,11 +51,13 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
     ``thresholds.judge_tracking`` (else they pass and say "not judged"); a session a motion clip
     commands has no velocity tracking: they pass, not judged (:data:`CLIP_NOT_JUDGED`).
     """
-    latched = result["runtime"]["latched_faults"]
+    latches = result["runtime"]["latches"]
+    safely = [x for x in latches if x.get("injected")]  # a stop an injected fault was to cause
+    latched = len(latches) - len(safely)
     th = result["thermal"]
     hot = [j for j in th["joints"] if th["peak_c"][j] > th["max_winding_c"][j]]
     thermal_stops = result["runtime"]["by_cause"].get("over_temperature", 0)
-    causes = sorted({x["cause"] for x in result["runtime"]["latches"] if x.get("cause")})
+    causes = sorted({x["cause"] for x in latches if x.get("cause") and not x.get("injected")})
     loco = result.get("locomotion")
     if loco is not None:  # a legged session: its success is the tracking success
         success, window, falls = _tracking_checks(loco, thresholds)
@@ -64,7 +68,13 @@ def session_checks(result: dict, thresholds: Thresholds) -> dict[str, dict]:
         "no_hard_violation": _hard_limit_check(result),
         "no_latched_fault": (
             latched == 0,
-            f"{latched} latched faults ({', '.join(causes)})" if latched else "no latched fault",
+            (f"{latched} latched faults ({', '.join(causes)})" if latched else "no latched fault")
+            + (
+                f"; {len(safely)} more after an injected camera fault stopped it safely "
+                "(not failed)"
+                if safely
+                else ""
+            ),
         ),
         "no_over_temperature": (
             not hot and thermal_stops == 0,

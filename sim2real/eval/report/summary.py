@@ -225,7 +225,13 @@ def _faults_line(t: dict) -> str:
     resp = ", ".join(f"{k} {n}" for k, n in f["responses"].items() if n)
     return (
         f"  faults       {f['injected']} injected, {f['survived']} survived ({resp or 'none'}); "
-        f"latched {t['latched_faults']}, operator resets {t['operator_resets']}"
+        f"latched {t['latched_faults']}"
+        + (
+            f" ({t['latched_injected']} after an injected camera fault: stopped safely)"
+            if t.get("latched_injected")
+            else ""
+        )
+        + f", operator resets {t['operator_resets']}"
         + (
             f"; {f['skipped_pushes']} scheduled pushes not applied (robot not running, or "
             "within the warmup after a reset)"
@@ -237,9 +243,10 @@ def _faults_line(t: dict) -> str:
 
 def camera_lines(s: dict) -> list[str]:
     """A camera policy's session: the camera faults it met (drawn for the session, and the
-    frames they hit) and the safe stops of a stale camera (``stale_sensor``, the first three with
-    the runtime's verdict); none without a camera (:func:`sim2real.eval.soak.camera_faults.
-    camera_result`)."""
+    frames they hit), the verdict (those it survived, those that stopped it safely and whether
+    it ran again, the camera faults each kind of failure followed) and the first three
+    stale-camera stops with the runtime's verdict; none without a camera
+    (:func:`sim2real.eval.soak.camera_faults.camera_result`)."""
     c = s.get("camera")
     if not c:
         return []
@@ -252,17 +259,61 @@ def camera_lines(s: dict) -> list[str]:
         f"lens {100 * f['occlusion']:.1f} % covered",
         f"mount knocked {knocked:.2f} deg",
     ]
-    if f.get("lighting", 1.0) != 1.0:
+    if c.get("kind") == "rgb" and f.get("lighting", 1.0) != 1.0:
         met.append(f"light x{f['lighting']:.2f}")
     stops = c.get("stale_stops", [])
+    v = c.get("verdict")
+    count = v["stops"]["count"] if v else len(stops)
     lines = [
         f"  camera       {s['id']}: '{c['camera']}' {c['rate_hz']:g} Hz, {c['frames']} frames; "
         f"met {', '.join(met)}; oldest frame used {1000 * c['oldest_s']:.0f} ms; safe stops "
-        f"for a stale camera {len(stops)}"
+        f"for a stale camera {count}"
     ]
+    if v:
+        lines += verdict_lines(v)
     for stop in stops[:3]:
         lines.append(f"  camera stop  at {stop['t_s']:.1f} s: {stop.get('verdict')}")
     return lines
+
+
+def verdict_lines(v: dict) -> list[str]:
+    """A camera session's verdict (the ``camera`` section's ``verdict``,
+    :meth:`sim2real.eval.soak.camera_verdict.CameraVerdict.section`) in three lines."""
+    fr = v["frames"]
+    names = {"frozen": "frozen frames", "dropped": "dropped frames", "late": "late frames"}
+    after = v["latched_after_camera"]
+    stopped = ", ".join(
+        f"{names[k]} {n} time{'s' if n != 1 else ''}" for k, n in v["stopped_safely"].items()
+    )
+    labels = ", ".join(f"{k} {n}" for k, n in sorted(v["stops"]["by_fault"].items()))
+    failures = []
+    for name, counts in v["failures"]["counts"].items():
+        total = sum(counts.values())
+        if total:
+            by = ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
+            failures.append(f"{name.replace('_', ' ')} {total} ({by})")
+    kept = len(v["stops"]["sample"])
+    return [
+        "  camera verdict survived (no stop): "
+        + (", ".join(names.get(k, k) for k in v["survived"]) or "none"),
+        "  camera verdict stopped it safely: "
+        + (
+            f"{stopped} (stale-camera stops {v['stops']['count']}: {labels}; "
+            f"{fr['frozen_spells']} frozen spells met); latched {after['count']}, each reset by "
+            f"the operator after {after['operator_reset_s']:g} s, running again after "
+            f"{after['ran_again']} of them (stops kept: the first {kept}, all counted)"
+            + (
+                f"; {v['own_faults_judged_with_a_camera_stop']} of the soak's own faults were "
+                "judged with a camera stop in their window"
+                if v.get("own_faults_judged_with_a_camera_stop")
+                else ""
+            )
+            if stopped
+            else "none"
+        ),
+        "  camera verdict failures by the camera fault before them (1 s; a missed goal: its "
+        "period): " + ("; ".join(failures) or "none"),
+    ]
 
 
 def _check_lines(report: dict) -> list[str]:

@@ -125,6 +125,10 @@ def totals(results: list[dict]) -> dict:
         "base_estimate": _base_estimate_totals(results),
         "faults": _fault_totals(results),
         "latched_faults": latched,
+        # of them, a stop an injected fault was to cause (a camera's): not failed
+        "latched_injected": sum(
+            1 for r in results for x in r["runtime"]["latches"] if x.get("injected")
+        ),
         "latched_faults_per_hour": latched / hours if hours > 0 else 0.0,
         "operator_resets": sum(r["runtime"]["operator_resets"] for r in results),
         "wheels": _wheel_totals(results),

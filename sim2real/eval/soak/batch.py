@@ -45,6 +45,7 @@ from sim2real.eval.soak.batch_plant import build_plant
 from sim2real.eval.soak.batch_stats import BatchStats
 from sim2real.eval.soak.batch_tick import BatchTick
 from sim2real.eval.soak.camera_faults import attach_session_cameras
+from sim2real.eval.soak.camera_verdict import CameraVerdict
 from sim2real.eval.soak.curriculum_walk import CurriculumWalk
 from sim2real.eval.soak.exhibition import exhibition_task
 from sim2real.eval.soak.faults import SessionFaults
@@ -214,6 +215,8 @@ class SessionBatch:
         self.sessions = [
             Session(self, e, c, d) for e, (c, d) in enumerate(zip(configs, draws, strict=True))
         ]
+        #: a camera policy's: what each session's camera faults did (None without a camera)
+        self.camera_verdict = CameraVerdict.of_batch(self)
         self._next_event = self.every
         self._ruckig = mode != "torque"
         #: what the operator does with a robot of this kind (a legged one: stands it up)
@@ -332,6 +335,8 @@ class SessionBatch:
                         s.operator_resets += 1
                         s.latches[-1]["reset_s"] = t
                     self.faulted[due] = False
+        if self.camera_verdict is not None:
+            self.camera_verdict.step(rt, t)
         for s in self.sessions:
             if ticks >= s.next_fault_tick:
                 s.fault_step(ticks)

@@ -68,34 +68,24 @@ def camera_result(session) -> dict:
     kind, rate_hz, latency_s, faults (the drawn CameraFaults), frames, delivered, dropped,
     spiked, frozen (the plant's counts), frames_taken, frames_repeated (the runtime's: fresh
     frames and frozen ones refused), oldest_s (the largest age of the last fresh frame, s),
-    stale_stops (the runtime's stale stops of this session that the camera caused, each
-    ``{t_s, camera_s, followed, verdict}``: its time, the last fresh frame's age, what the
-    camera's faults did in the second before (:meth:`~sim2real.deploy.backends.sim.
-    plant_camera.PlantCamera.recent`) and the runtime's verdict)}}``."""
+    stale_stops (the first stale-camera stops of the session, each ``{t_s, camera_s, followed,
+    verdict}``: its time, the last fresh frame's age, what the camera's faults did in the
+    second before (:meth:`~sim2real.deploy.backends.sim.plant_camera.PlantCamera.recent`) and
+    the runtime's verdict; all are counted in ``verdict.stops``), verdict (what the faults did:
+    :meth:`sim2real.eval.soak.camera_verdict.CameraVerdict.section`)}}``."""
     b, e = session.batch, session.e
     source = getattr(b.backend, "camera_source", None)
     stage = getattr(b.rt, "cameras", None)
     if source is None or stage is None:
         return {}
-    stops = [
-        r
-        for r in getattr(getattr(b.rt, "stale_stops", None), "records", [])
-        if r.get("env") == e and r.get("camera_s") is not None
-    ]
-    return {
-        "camera": {
-            **source.summary(e),
-            "frames_taken": int(stage.taken[e]),
-            "frames_repeated": int(stage.repeated[e]),
-            "oldest_s": round(float(stage.oldest[e]), 6),
-            "stale_stops": [
-                {
-                    "t_s": r["t_s"],
-                    "camera_s": r["camera_s"],
-                    "followed": r.get("other_side", {}).get("camera_faults"),
-                    "verdict": r.get("verdict"),
-                }
-                for r in stops
-            ],
-        }
+    out = {
+        **source.summary(e),
+        "frames_taken": int(stage.taken[e]),
+        "frames_repeated": int(stage.repeated[e]),
+        "oldest_s": round(float(stage.oldest[e]), 6),
     }
+    verdict = getattr(b, "camera_verdict", None)
+    if verdict is not None:
+        out["verdict"] = verdict.section(e, out)
+        out["stale_stops"] = out["verdict"]["stops"]["sample"]
+    return {"camera": out}

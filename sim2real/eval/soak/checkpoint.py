@@ -125,6 +125,19 @@ def load_stage(stage, state: Mapping, env: int | None, where, prefix: str | None
         raise CheckpointError(f"{where}: field '{name}': {exc}; {_hint(where)}") from None
 
 
+def optional_stages(batch) -> dict:
+    """The stages only some soak batches have, by checkpoint prefix: a legged robot's
+    ``estimation``, a terrain's ``terrain`` figures and ``curriculum`` walk, a camera policy's
+    ``camera_verdict`` (:mod:`sim2real.eval.soak.camera_verdict`); those the batch has."""
+    parts = {
+        "estimation": batch.estimation,
+        "terrain": batch.terrain_figures,
+        "curriculum": batch.curriculum,
+        "camera_verdict": batch.camera_verdict,
+    }
+    return {k: v for k, v in parts.items() if v is not None}
+
+
 def split_state(state: Mapping) -> tuple[dict[str, np.ndarray], dict]:
     """A state's arrays (for the npz) and its scalars (int, float, bool or str, for the JSON).
 

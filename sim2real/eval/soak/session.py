@@ -4,11 +4,9 @@ A **session** is one continuous run of :class:`sim2real.deploy.runtime.Runtime` 
 (:class:`~sim2real.deploy.runtime.SimClock`) for ``hours`` of simulated time (8 by default): a new goal
 every ``goal_period`` s (:class:`sim2real.deploy.tasks.goals.GoalScheduler`), dynamics, sensor settings,
 drift and a fault schedule drawn from the session seed
-(:func:`sim2real.eval.world.session_draw.sample_session`),
-friction
-rising with wear over the session, the motor thermal model running throughout. It runs as env
-``e`` of a batch (:class:`sim2real.eval.soak.batch.SessionBatch`); :class:`Session` keeps what is its own
-there:
+(:func:`sim2real.eval.world.session_draw.sample_session`), friction rising with wear over the
+session, the motor thermal model running throughout. It runs as env ``e`` of a batch
+(:class:`sim2real.eval.soak.batch.SessionBatch`); :class:`Session` keeps what is its own there:
 its fault schedule and the runtime's responses, latches, operator resets, hourly rows, curves,
 drift, and its part of a checkpoint. Its folder is ``OUT/sessions/<id>/`` (:func:`session_dir`);
 its result document is built by :mod:`sim2real.eval.soak.result`. A legged robot's session
@@ -23,7 +21,9 @@ resolved), ``resumed`` (stopped and running again), ``latched`` (FAULTED), or ``
 (the env was already stopped at the onset). A push is applied only to a RUNNING robot at least
 the schedule's ``warmup`` after its last operator reset; the others are not injected but listed
 (``skipped_pushes``). Only ``held`` counts as survived. A latched fault is
-cleared by an operator after ``operator_reset`` s (the session goes on: RAMP_IN), and counted.
+cleared by an operator after ``operator_reset`` s (the session goes on: RAMP_IN), and counted;
+one that followed a stale-camera stop after an injected camera fault stopped the robot safely
+(its ``injected``, :mod:`sim2real.eval.soak.camera_verdict`): counted, not failed.
 """
 
 from __future__ import annotations
@@ -372,13 +372,7 @@ class Session:
             "violations": b.violations,
             "interventions": b.interventions,
         }
-        if b.estimation is not None:
-            parts["estimation"] = b.estimation
-        if b.terrain_figures is not None:
-            parts["terrain"] = b.terrain_figures
-        if b.curriculum is not None:
-            parts["curriculum"] = b.curriculum
-        state.update(parts_state_dict(parts, e))
+        state.update(parts_state_dict(parts | ckpt.optional_stages(b), e))
         if self.fault_armed:
             state.update(prefixed("injector", b.faults.armed[e].state_dict()))
         meta = {
@@ -460,12 +454,8 @@ class Session:
         ckpt.load_stage(b.stats, arrays, e, where, "stats")
         ckpt.load_stage(b.violations, arrays, e, where, "violations")
         ckpt.load_stage(b.interventions, arrays, e, where, "interventions")
-        if b.estimation is not None:
-            ckpt.load_stage(b.estimation, arrays, e, where, "estimation")
-        if b.terrain_figures is not None:
-            ckpt.load_stage(b.terrain_figures, arrays, e, where, "terrain")
-        if b.curriculum is not None:
-            ckpt.load_stage(b.curriculum, arrays, e, where, "curriculum")
+        for prefix, part in ckpt.optional_stages(b).items():
+            ckpt.load_stage(part, arrays, e, where, prefix)
         s = meta["session"]
         self.fault_index = int(s["fault_index"])
         self.fault_armed = bool(s["fault_armed"])

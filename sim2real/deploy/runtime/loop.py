@@ -423,11 +423,9 @@ class Runtime:
         st[7] = clock_ns()
         self.backend.advance()
         st[8] = clock_ns()
-        # the action the drives ran: an env not RUNNING ran the runtime's override, not the
-        # policy's, whose output fed back to itself would grow unchecked (a policy reading its
-        # last action, lying damped for seconds)
-        compiled = self._compiled
-        if compiled is None or not compiled.action_ran(state, action, self._idle):
+        # the action the drives ran: an env not RUNNING ran the runtime's override, not the policy's,
+        # whose output fed back to itself would grow unchecked (its last action, lying damped)
+        if self._compiled is None or not self._compiled.action_ran(state, action, self._idle):
             state.last_action[:] = action
             if any_true(np.not_equal(self.mode, RUNNING, out=self._idle)):
                 np.copyto(state.last_action, 0.0, where=self._idle_rows)

@@ -14,8 +14,8 @@ import json
 import numpy as np
 import pytest
 
-from sim2real.deploy.cli.run_verdict import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT
 from sim2real.deploy.cli.deploy_run import deploy_run_main as deploy_run
+from sim2real.deploy.cli.run_verdict import EXIT_BAD_INPUT, EXIT_CLEAN, EXIT_FAULT
 from sim2real.deploy.observe.chunk_jerk import boundary_jerk
 from sim2real.robots import load_robot
 from tests.lerobot_folder import write_chunk_onnx

@@ -144,8 +144,9 @@ def test_an_exported_act_with_a_camera_runs_in_deploy_run_on_a_recorded_video(tm
     video's frames taken; the same ACT with two cameras is refused in one line (the runtime
     reads one camera per policy)."""
     cv2 = pytest.importorskip("cv2", reason="OpenCV (the extra 'camera') is not installed")
+    from sim2real.deploy.cli.deploy_run import deploy_run_main
     from sim2real.deploy.cli.run_verdict import EXIT_BAD_INPUT as RUN_BAD_INPUT
-    from sim2real.deploy.cli.deploy_run import EXIT_CLEAN, EXIT_FAULT, deploy_run_main
+    from sim2real.deploy.cli.run_verdict import EXIT_CLEAN, EXIT_FAULT
 
     folder = lerobot_act_folder(tmp_path / "pm", cameras="front", n_action_steps=3)
     out = tmp_path / "act.onnx"

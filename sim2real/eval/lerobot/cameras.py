@@ -6,14 +6,12 @@ OV5647's noise and the exposure drift) rendering the robot's task scene
 their own, the goal marker at the run's goal.
 
 :meth:`SceneCameras.capture` gives the frames a LeRobot dataset records (uint8 (rows, columns, 3)
-R, G, B); :func:`chunk_frames` the ``frames`` hook of
-:func:`sim2real.eval.lerobot.action_chunks.run_chunks` (float32 (3, rows, columns) in [0, 1],
-as lerobot's ``prepare_observation_for_inference`` makes them) from the same cameras.
+R, G, B). A policy run renders the same scene's cameras through the runtime's camera stage
+(:func:`sim2real.deploy.backends.sim.camera.attach_plant_camera`, one camera per policy).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from types import SimpleNamespace
 
 import numpy as np
@@ -86,22 +84,3 @@ class SceneCameras:
     def close(self) -> None:
         for cam in self.cameras.values():
             cam.close()
-
-
-def to_chw(image: np.ndarray) -> np.ndarray:
-    """uint8 (rows, columns, 3) -> float32 (3, rows, columns) in [0, 1] (``x / 255``)."""
-    return np.ascontiguousarray(np.moveaxis(image, -1, 0), dtype=np.float32) / np.float32(255.0)
-
-
-def chunk_frames(
-    cameras: SceneCameras, env_state: Callable[[float], np.ndarray]
-) -> Callable[[float], dict]:
-    """``frames(t)`` for :func:`~sim2real.eval.lerobot.action_chunks.run_chunks`: per LeRobot
-    key (``observation.images.<name>``) the camera's newest frame as float32 (3, rows, columns)
-    in [0, 1], the marker at ``env_state(t)`` (the goal, m)."""
-
-    def frames(t: float) -> dict:
-        images = cameras.capture(t, env_state(t))
-        return {KEY.format(n): to_chw(im) for n, im in images.items()}
-
-    return frames

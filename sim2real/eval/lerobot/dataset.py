@@ -263,6 +263,7 @@ def train_act(
     env_state: bool = True,
     cameras: bool = True,
     lr_backbone: float = 1e-4,
+    budget: float | None = None,
 ):
     """A small ACT trained on the dataset at ``root`` with lerobot's own classes (``LeRobotDataset``
     with ACT's ``action_delta_indices``, ``make_pre_post_processors`` on the dataset's statistics,
@@ -276,8 +277,12 @@ def train_act(
 
     The frames are read once through ``LeRobotDataset`` (images kept as uint8) and the steps
     drawn from memory: ``lerobot-train``'s data loader ran at 2-3 s per step on a busy 2-core
-    machine. Returns the last step's loss.
+    machine. ``budget``: s of training (after the frames are read) at most; the steps stop there
+    and the folder is written as after the last. Returns the last step's loss and the steps
+    taken.
     """
+    import time
+
     import torch
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
@@ -289,7 +294,9 @@ def train_act(
     meta = LeRobotDatasetMetadata("sim2real/so101_reach", root=root)
     ft = meta.features
     inputs = {
-        "observation.state": PolicyFeature(FeatureType.STATE, tuple(ft["observation.state"]["shape"]))
+        "observation.state": PolicyFeature(
+            FeatureType.STATE, tuple(ft["observation.state"]["shape"])
+        )
     }
     if env_state:
         inputs["observation.environment_state"] = PolicyFeature(
@@ -333,7 +340,11 @@ def train_act(
     policy.train()
     loss = float("nan")
     n = len(data["action"])
+    start, taken = time.monotonic(), 0
     for step in range(steps):
+        if budget is not None and time.monotonic() - start > budget:
+            log(f"step {step}: the budget of {budget:g} s is spent")
+            break
         idx = torch.randint(0, n, (batch_size,), generator=gen)
         batch = {k: v[idx] for k, v in data.items()}
         for k in images:
@@ -345,6 +356,7 @@ def train_act(
         torch.nn.utils.clip_grad_norm_(policy.parameters(), 10.0)
         opt.step()
         loss = float(out_loss.detach())
+        taken = step + 1
         if step % log_every == 0 or step == steps - 1:
             log(f"step {step}: loss {loss:.4f}")
     policy.eval()
@@ -352,7 +364,7 @@ def train_act(
     policy.save_pretrained(out)
     pre.save_pretrained(out)
     post.save_pretrained(out)
-    return loss
+    return loss, taken
 
 
 if __name__ == "__main__":

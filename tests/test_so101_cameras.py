@@ -57,3 +57,25 @@ def test_cameras_render_at_the_shape_and_see_the_goal(rig):
     corner = np.array(robot.config.task.box_min) + [0.05, 0.05, 0.05]
     side = cams.capture(0.08, corner)
     assert red(side["front"]) >= 2
+
+
+def test_deploy_run_renders_the_front_camera_of_the_scene_for_a_lerobot_export(tmp_path):
+    """A LeRobot export with an ``observation.images.front`` key on ``deploy-run --backend sim``
+    takes its frames from the plant's camera rendering so101_scene.xml's ``front``."""
+    import json
+
+    from sim2real.deploy.cli.deploy_run import deploy_run_main as deploy_run
+    from sim2real.deploy.cli.run_verdict import EXIT_CLEAN
+    from tests.lerobot_folder import write_chunk_onnx
+
+    path = write_chunk_onnx(tmp_path / "front.onnx", fps=25.0, image_shape=(3, *SHAPE))
+    report = tmp_path / "report.json"
+    code = deploy_run(
+        ["--robot", "so101", "--policy", str(path), "--report", str(report)]
+        + ["--backend", "sim", "--duration", "2"]
+    )
+    r = json.loads(report.read_text())
+    assert code == EXIT_CLEAN
+    cam = r["camera"]
+    assert cam["camera"] == "front" and cam["plant"]["rate_hz"] == 25.0
+    assert cam["frames_taken"][0] >= 45 and cam["plant"]["delivered"][0] >= 45  # 2 s at 25 Hz

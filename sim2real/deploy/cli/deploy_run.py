@@ -66,7 +66,14 @@ from sim2real.deploy.cli.run_parser import (
     parse_terrain_option,
 )
 from sim2real.deploy.cli.run_summary import print_summary
-from sim2real.deploy.cli.run_verdict import EXIT_BAD_INPUT, exit_code
+from sim2real.deploy.cli.run_verdict import (  # noqa: F401 (deploy-run's exit codes, public here)
+    EXIT_BAD_INPUT,
+    EXIT_CLEAN,
+    EXIT_DIVERGED,
+    EXIT_FAULT,
+    EXIT_HARD_VIOLATION,
+    exit_code,
+)
 from sim2real.deploy.core.backend import SimulatedPlant
 from sim2real.deploy.spec.drive import drive_robot
 from sim2real.robots.files import atomic_write

@@ -2,6 +2,7 @@ import functools
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
@@ -81,6 +82,67 @@ def pytest_collection_modifyitems(config, items):
         )
         if group and not item.nodeid.endswith("@" + group):
             item._id = NodeId.parse(f"{item.nodeid}@{group}")
+
+
+# Opt-in CPU accounting: SIM2REAL_TEST_CPU=FILE appends, per test and phase, the tab-separated
+# line "worker nodeid phase cpu_s wall_s end_time": cpu_s is the process's CPU (user + system)
+# plus its waited-for children's (a subprocess.run's; not a Ray worker's nor a daemon's), which
+# ranks tests on a busy machine where wall times do not; end_time (time.time()) shows a worker
+# idle at the end. Each worker also writes "worker <collection> - cpu_s - end_time": its CPU
+# from its start to the end of collection (the interpreter, the test modules' imports).
+# tests/cpu_table.py sums the file by test and by file.
+CPU_LOG = os.environ.get("SIM2REAL_TEST_CPU")
+
+
+def _cpu_s() -> float:
+    """This process's CPU seconds, user plus system, with its waited-for children's."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def _cpu_line(*fields) -> None:
+    """Append one line to :data:`CPU_LOG` (one ``write`` on an ``O_APPEND`` file: the workers'
+    lines do not interleave)."""
+    line = "\t".join(str(f) for f in fields) + "\n"
+    fd = os.open(CPU_LOG, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, line.encode())
+    finally:
+        os.close(fd)
+
+
+def _worker() -> str:
+    return os.environ.get("PYTEST_XDIST_WORKER", "main")
+
+
+def pytest_collection_finish(session):
+    if CPU_LOG:
+        _cpu_line(_worker(), "<collection>", "-", f"{_cpu_s():.3f}", "-", f"{time.time():.3f}")
+
+
+def _cpu_phase(item, phase):
+    if not CPU_LOG:
+        yield
+        return
+    cpu, wall = _cpu_s(), time.perf_counter()
+    yield
+    cpu, wall = _cpu_s() - cpu, time.perf_counter() - wall
+    _cpu_line(_worker(), item.nodeid, phase, f"{cpu:.3f}", f"{wall:.3f}", f"{time.time():.3f}")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item):
+    yield from _cpu_phase(item, "setup")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item):
+    yield from _cpu_phase(item, "call")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item, nextitem):
+    yield from _cpu_phase(item, "teardown")
 
 
 @pytest.fixture(scope="module")

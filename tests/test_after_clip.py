@@ -19,6 +19,10 @@ from sim2real.deploy.tasks.motion.clock import MotionClock
 from sim2real.deploy.tasks.motion.travel import OFF_PATH_M, ClipTravel
 from tests.walking_dancer import clip_npz, walking_dancer_onnx
 
+# Every test reads the module fixture: on one pytest-xdist worker (make test's --dist
+# loadgroup), which builds it once, not once per worker.
+pytestmark = pytest.mark.xdist_group("walking_dancer")
+
 
 @pytest.fixture(scope="module")
 def dancer(go2, go2_policies, tmp_path_factory):

@@ -20,6 +20,10 @@ from sim2real.deploy.export.noise_floor import TOLERANCE, float64_twin
 from sim2real.deploy.export.torchscript import load_torchscript
 from tests.robomimic_files import FRAME, FRAMES, DanceWrapper, write_robomimic_folder
 
+# Every test reads the module fixture: on one pytest-xdist worker (make test's --dist
+# loadgroup), which builds it once, not once per worker.
+pytestmark = pytest.mark.xdist_group("robomimic_dance")
+
 #: Weights large enough that at the parity's edge cases (+-clip_obs = 100) the actions reach
 #: ~1e2 and float32 rounding alone is above the absolute TOLERANCE.
 GAIN = 0.3

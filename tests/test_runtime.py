@@ -37,12 +37,15 @@ def seconds(rt, s):
 @pytest.mark.parametrize("robot_name", ["arm3", "arm6"])
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
 def test_adversarial_policy_never_drives_the_robot_beyond_its_limits(tmp_path, robot_name, mode):
-    """Uniform random actions with NaN for 30 simulated seconds (the 10-minute runs of the issue
+    """Uniform random actions with NaN for 10 simulated seconds (the 10-minute runs of the issue
     are `python -m sim2real.deploy.cli.acceptance --seconds 600`): every command is finite, within the hard
     position limits and the velocity, acceleration and jerk limits (position and velocity mode) or
     the effort and torque-rate limits (torque mode), the joints stay within their hard limits, and
-    the runtime ends RUNNING or in the latched safe stop of a predicted hard-limit crossing."""
-    result = check_adversarial(load_robot(robot_name), mode, 30.0, workdir=tmp_path)
+    the runtime ends RUNNING or in the latched safe stop of a predicted hard-limit crossing.
+    10 s, not 30: every case ends RUNNING with the same worst ratios either way (each binding
+    limit reached, 1.0), and a smoother 2 % past its acceleration and jerk limits fails the
+    position and velocity cases of both arms within 10 s; 30 s cost 19 CPU-s for the six."""
+    result = check_adversarial(load_robot(robot_name), mode, 10.0, workdir=tmp_path)
     assert result.non_finite_actions > 0
     assert result.passed, result.failures
     # the checks bind: the smoother drives the commands to their limits, not far below them

@@ -612,8 +612,9 @@ def test_a_legged_policys_pd_targets_past_its_range_are_reported_not_judged(batc
 
 # ---------------------------------------------------------------- soak-test
 def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
-    """Two local processes, the reports, then the same campaign against baselines (--resume of a
-    finished campaign runs nothing again)."""
+    """Two batches in a local process pool (``--workers 1``: one spawned process runs both; a
+    second process cost a second interpreter's imports and kernel loads), the reports, then the
+    same campaign against baselines (--resume of a finished campaign runs nothing again)."""
     out = tmp_path / "run"
     base = [
         "--robot",
@@ -639,12 +640,14 @@ def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
         "--max-interventions",
         "1",
         "--no-progress",
+        "--workers",  # one process runs both batches: the pool's path at one start's cost
+        "1",
     ]
     code = cli.main(base)
     report = json.loads((out / "report.json").read_text())
     assert code == cli.exit_code(report) == report["exit_code"] == cli.EXIT_PASSED
     assert [s["seed"] for s in report["sessions"]] == [5, 6]
-    assert [s["wall"]["batch"] for s in report["sessions"]] == [[5], [6]]  # one per process
+    assert [s["wall"]["batch"] for s in report["sessions"]] == [[5], [6]]  # one batch each
     assert (out / "report.html").exists() and (out / "junit.xml").exists()
     assert "exit code    0" in capsys.readouterr().out
 

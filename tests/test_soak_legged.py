@@ -218,12 +218,18 @@ def test_a_soak_refused_for_its_clip_writes_nothing_and_removes_no_earlier_sessi
     assert earlier.read_text() == "{}"
 
 
+# The tests reading the module fixture go2_uninterrupted: on one pytest-xdist worker (make test's
+# --dist loadgroup), which builds it once, not once per worker.
+ON_ONE_WORKER = pytest.mark.xdist_group("go2_uninterrupted")
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(config, tmp_path_factory):
     out = tmp_path_factory.mktemp("legged_whole")
     return SessionBatch([config], out, progress=False).run()[0]
 
 
+@ON_ONE_WORKER
 def test_kill_and_resume_of_a_go2_session_equals_an_uninterrupted_run(
     config, uninterrupted, tmp_path
 ):
@@ -263,6 +269,7 @@ def test_robot_import_writes_go2s_soak_table(tmp_path):
     assert written.replace(str(out), "robots/go2") == shipped
 
 
+@ON_ONE_WORKER
 def test_a_legged_sessions_tracking_is_judged_only_when_the_user_asks(uninterrupted):
     """How closely a policy follows every command is its own quality: reported, not judged,
     unless a threshold is given (soak-test --min-success); falls and violations are judged."""

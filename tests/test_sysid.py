@@ -26,6 +26,11 @@ TRUTH = (
 )
 
 
+# The tests reading the module fixture worn_log: on one pytest-xdist worker (make test's
+# --dist loadgroup), which builds it once, not once per worker.
+ON_ONE_WORKER = pytest.mark.xdist_group("worn_log")
+
+
 @pytest.fixture(scope="module")
 def worn_log(tmp_path_factory):
     """4 s of the shipped SO-101 policy on the worn robot, recorded."""
@@ -37,6 +42,7 @@ def worn_log(tmp_path_factory):
     return folder, log, TRUTH
 
 
+@ON_ONE_WORKER
 def test_the_log_holds_every_tick(worn_log, so101):
     _, log, _ = worn_log
     meta, arrays = read_command_log(log)
@@ -46,6 +52,7 @@ def test_the_log_holds_every_tick(worn_log, so101):
     np.testing.assert_allclose(np.diff(arrays["t"]), so101.control_period)
 
 
+@ON_ONE_WORKER
 def test_sysid_recovers_the_worn_motors(worn_log, so101):
     folder, log, truth = worn_log
     out = folder / "fit"

@@ -43,6 +43,11 @@ def read(path):
     return out
 
 
+# The tests reading the module fixture recorded: on one pytest-xdist worker (make test's
+# --dist loadgroup), which builds it once, not once per worker.
+ON_ONE_WORKER = pytest.mark.xdist_group("recorded")
+
+
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory, arm3):
     """A 2 s position-mode run of the adversarial policy (it leans on the guard), every 5th tick
@@ -57,6 +62,7 @@ def recorded(tmp_path_factory, arm3):
     return rt, path, read(path)
 
 
+@ON_ONE_WORKER
 def test_end_effector_frame_transforms_equal_forward_kinematics_of_the_logged_joints(
     recorded, arm3
 ):
@@ -86,6 +92,7 @@ def test_end_effector_frame_transforms_equal_forward_kinematics_of_the_logged_jo
     assert names == {"base", "link1", "link2", "link3", ee}
 
 
+@ON_ONE_WORKER
 def test_foxglove_topics_have_the_well_known_schemas_and_the_raw_topics_stay(recorded, arm3):
     _, _, topics = recorded
     schema = {topic: (rows[0][1], rows[0][2]) for topic, rows in topics.items()}

@@ -127,6 +127,11 @@ def test_a_session_ending_mid_clip_logs_that_clip_unfinished(go2, go2_onnx, tmp_
     assert heat_report(task.plays(0))["completed"] == len(task.play_log[0]) + 1
 
 
+# The tests reading the module fixture legged_result: on one pytest-xdist worker (make test's
+# --dist loadgroup), which builds it once, not once per worker.
+ON_ONE_WORKER = pytest.mark.xdist_group("legged_result")
+
+
 @pytest.fixture(scope="module")
 def legged_result(go2_onnx, tmp_path_factory) -> dict:
     """A 7.2-s go2 soak session's result (a velocity-commanded one, to be dressed as a clip's)."""
@@ -137,6 +142,7 @@ def legged_result(go2_onnx, tmp_path_factory) -> dict:
     return SessionBatch([config], tmp_path_factory.mktemp("legged"), progress=False).run()[0]
 
 
+@ON_ONE_WORKER
 def test_a_clip_sessions_summary_claims_no_velocity_tracking(legged_result):
     """A legged session a clip commands (``commanded_by: clip``): the console summary prints its
     falls and its clips' tracking (joint error, anchor error, MPJPE per clip), no velocity
@@ -206,6 +212,7 @@ def test_the_anchor_is_judged_against_the_true_heading_not_the_estimates(go2, go
     assert turned == pytest.approx(straight, abs=1.0), (straight, turned)
 
 
+@ON_ONE_WORKER
 def test_a_clip_campaign_is_not_judged_on_a_baselines_velocity_tracking(legged_result):
     """A clip campaign against a velocity-commanded baseline of the same robot (or the other way
     round): no velocity tracking to compare, so no regression of it (the clip side's None was

@@ -106,6 +106,11 @@ def test_fine_tuning_from_another_recipes_checkpoint_names_the_file(tmp_path):
         )
 
 
+# The tests reading the module fixture scan_tuned: on one pytest-xdist worker (make test's
+# --dist loadgroup), which builds it once, not once per worker.
+ON_ONE_WORKER = pytest.mark.xdist_group("scan_tuned")
+
+
 @pytest.fixture(scope="module")
 def scan_tuned(tmp_path_factory):
     """A perceptive Go2 made by the recipe: --height-scan --init-from sim2real/policies/go2.pt,
@@ -122,6 +127,7 @@ def scan_tuned(tmp_path_factory):
     return shipped, tmp / "w" / "go2_seed1.pt", tmp / "t" / "go2_seed1.pt"
 
 
+@ON_ONE_WORKER
 def test_a_height_scan_fine_tune_starts_blind_and_learns_weights_on_its_scan(scan_tuned):
     """--height-scan appends legged_gym's 187 terrain heights to the shipped spec: the fine-tune
     starts from the shipped actor with the scan's input weights at 0 (the warm-up's candidate
@@ -147,6 +153,7 @@ def test_a_height_scan_fine_tune_starts_blind_and_learns_weights_on_its_scan(sca
     np.testing.assert_allclose(onnx(obs), expected, atol=1e-5)
 
 
+@ON_ONE_WORKER
 def test_the_tuned_policys_scan_on_a_stair_tile_is_the_truths_ray_casts_plus_its_noise(scan_tuned):
     """The fine-tuned policy's export run by the runtime on a 10 cm stairs-up tile: the scan the
     policy observes each tick is a noise-free scanner's ray casts on the tile from the same

@@ -152,6 +152,9 @@ class CompiledSupervision(TableCalls):
         self._estimator_input: np.ndarray | None = None
         bind(fk.screen, fk.SCREEN.empty())  # compiled (or loaded from numba's cache) now
         bind(fk.supervise_only, fk.SUPERVISE.empty())
+        e, m = self.envs, self.n  # action_ran's call on copies (the arrays it binds to later)
+        bind(sv.action_ran, np.zeros((e, m)), np.zeros((e, m), np.float32), self.mode.copy(),
+             np.zeros(e, bool), int(Mode.RUNNING))  # fmt: skip
         if state.base is None:  # a fixed base: the fused call too, and its kinematics
             bind(fk.estimate_observe, fk.FUSED.empty(), rest=(0,))
             self._kinematics = Kinematics(self.robot)

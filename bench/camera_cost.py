@@ -55,13 +55,8 @@ def head_camera_robot(out: Path, target: float | None = None) -> Path:
     return out
 
 
-def render_costs(robot, block, frames: int) -> np.ndarray:
-    """(frames,) ns, one render of the head camera's true depth (the robot standing)."""
-    from sim2real.deploy.backends.sim.camera import PlantDepthCamera
-    from sim2real.deploy.backends.sim.plant import SimBackend
-
-    plant = SimBackend(robot, "position", envs=1)
-    camera = PlantDepthCamera(plant, block)
+def depth_costs(camera, frames: int) -> np.ndarray:
+    """(frames,) ns, one render of ``camera``'s true depth each (after one to warm); closes it."""
     camera.true_depth()  # warm
     costs = []
     for _ in range(frames):
@@ -70,6 +65,16 @@ def render_costs(robot, block, frames: int) -> np.ndarray:
         costs.append(time.perf_counter_ns() - t0)
     camera.close()
     return np.asarray(costs, dtype=np.int64)
+
+
+def render_costs(robot, block, frames: int) -> np.ndarray:
+    """(frames,) ns, one render of the head camera's true depth (the robot standing)."""
+    from sim2real.deploy.backends.sim.camera import PlantDepthCamera
+    from sim2real.deploy.backends.sim.plant import SimBackend
+
+    plant = SimBackend(robot, "position", envs=1)
+    camera = PlantDepthCamera(plant, block)
+    return depth_costs(camera, frames)
 
 
 def task_scene_costs(frames: int) -> np.ndarray:
@@ -88,14 +93,7 @@ def task_scene_costs(frames: int) -> np.ndarray:
     spec = OnnxPolicy(shipped, robot).spec
     plant = SimBackend(robot, spec.action.mode, envs=1)
     camera = attach_plant_camera(plant, spec)
-    camera.true_depth()  # warm
-    costs = []
-    for _ in range(frames):
-        t0 = time.perf_counter_ns()
-        camera.true_depth()
-        costs.append(time.perf_counter_ns() - t0)
-    camera.close()
-    return np.asarray(costs, dtype=np.int64)
+    return depth_costs(camera, frames)
 
 
 def rgb_costs(robot, block, frames: int) -> tuple[np.ndarray, np.ndarray]:

@@ -37,6 +37,7 @@ from sim2real.stacks.loops.bare import (
     STOP_RAISED,
     Run,
     bare_plant,
+    judge_tick,
     past_hard_limit,
     quiet,
     true_fall,
@@ -65,7 +66,6 @@ def _bare_run(
     pushes act through (default
     :class:`~sim2real.deploy.backends.sim.disturbances.SimDisturbances` on ``plant``'s model)."""
     m, d = plant.m, plant.d
-    qo = robot.qpos_offset
     walk, run = walk or Walk(), Run()
     schedule = DomainPushes([seed], pushes, robot.control_period) if pushes else None
     base = pushed or SimDisturbances(robot, [m], [d])  # the plant's push methods
@@ -77,13 +77,8 @@ def _bare_run(
             watch(t, d, target)
         if path is not None:
             path.append((t, float(d.qpos[0]), float(d.qpos[1])))
-        run.walked = walk.ticks = tick
-        run.past_limit += past_hard_limit(robot, d.qpos[qo:])
-        if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
-            run.fell_at, run.cause = t, "fall"
+        if judge_tick(run, walk, robot, d, tick, robot.control_period, schedule, base):
             break
-        if schedule is not None:
-            schedule(walk, base)
     run.walked *= robot.control_period
     run.pushes = list(schedule.times[0]) if schedule else []
     return run

@@ -139,6 +139,23 @@ def true_upright(robot, position_z: float, quaternion: np.ndarray, vz: float = 0
     return bool(upright(_tilt(quaternion), position_z, vz, limit, standing))
 
 
+def judge_tick(run: Run, walk, robot, d, tick: int, period: float, schedule, pushed) -> bool:
+    """After an own loop's control tick ``tick`` (1-based, of ``period`` s) on the true state
+    ``d`` (MjData):
+    ``run.walked`` and ``walk.ticks`` set to ``tick``, a joint past its hard limit counted, and
+    the pushes of ``schedule`` (a ``DomainPushes``, or None) applied through ``pushed``. Returns
+    True, with ``run.fell_at`` (s) and ``run.cause`` set, when the true base fell or the state is
+    no longer finite: the loop ends there (then ``run.walked *= period`` as at any end)."""
+    run.walked = walk.ticks = tick
+    run.past_limit += past_hard_limit(robot, d.qpos[robot.qpos_offset :])
+    if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
+        run.fell_at, run.cause = tick * period, "fall"
+        return True
+    if schedule is not None:
+        schedule(walk, pushed)
+    return False
+
+
 def bare_plant(robot, gains) -> BarePlant:
     """A :class:`BarePlant` of ``robot`` at its home pose, at rest, under ``gains`` (kp, kd,
     the first target)."""

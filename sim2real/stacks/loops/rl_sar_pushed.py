@@ -15,7 +15,7 @@ import numpy as np
 from sim2real.deploy.backends.sim.disturbances import SimDisturbances
 from sim2real.deploy.core.stacks import TrackingLoop
 from sim2real.eval.world.pushes import DomainPushes
-from sim2real.stacks.loops.bare import Run, bare_plant, past_hard_limit, true_fall
+from sim2real.stacks.loops.bare import Run, bare_plant, judge_tick
 from sim2real.stacks.loops.rl_sar_motion import RlSarMotion, rl_sar_params
 from sim2real.stacks.loops.rl_sar_tracking import load_policy, observation
 from sim2real.stacks.loops.walk import Walk
@@ -93,13 +93,8 @@ def rl_sar_loop(
         if watch is not None:
             watch(d, target)
         step()
-        run.walked = walk.ticks = k + 1
-        run.past_limit += past_hard_limit(robot, d.qpos[qo:])
-        if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
-            run.fell_at, run.cause = (k + 1) * period, "fall"
+        if judge_tick(run, walk, robot, d, k + 1, period, schedule, bare):
             break
-        if schedule is not None:
-            schedule(walk, bare)
     run.walked *= period
     run.pushes = [t - period for t in schedule.times[0]] if schedule else []  # the frame's time
     return run

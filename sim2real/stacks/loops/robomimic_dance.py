@@ -263,7 +263,7 @@ def play(robot, folder, seed: int, seconds: float | None, pushes, watch=None, re
     """
     from sim2real.deploy.backends.sim.disturbances import SimDisturbances
     from sim2real.eval.world.pushes import DomainPushes
-    from sim2real.stacks.loops.bare import Run, bare_plant, past_hard_limit, true_fall
+    from sim2real.stacks.loops.bare import Run, bare_plant, judge_tick
     from sim2real.stacks.loops.walk import Walk
 
     cfg, joints, net = folder_dance(folder)
@@ -299,13 +299,8 @@ def play(robot, folder, seed: int, seconds: float | None, pushes, watch=None, re
         if watch is not None:
             watch(d, target)
         plant.advance()
-        run.walked = walk.ticks = k + 1
-        run.past_limit += past_hard_limit(robot, d.qpos[qo:])
-        if true_fall(robot, d.qpos[2], d.qpos[3:7]) or not np.isfinite(d.qpos).all():
-            run.fell_at, run.cause = (k + 1) * period, "fall"
+        if judge_tick(run, walk, robot, d, k + 1, period, schedule, disturb):
             break
-        if schedule is not None:
-            schedule(walk, disturb)
     run.walked *= period
     run.pushes = [t - period for t in schedule.times[0]] if schedule else []
     return run

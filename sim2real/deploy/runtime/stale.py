@@ -111,9 +111,9 @@ class StaleStops:
             kind = "colour" if camera.block.kind == "rgb" else "depth"
             stream = f"{kind} camera '{camera.block.camera}'"  # frozen or silent
             if len(stale_cams) > 1:
-                stream += " (stale too: " + ", ".join(
-                    f"'{c.block.camera}'" for c in stale_cams[1:]
-                ) + ")"
+                stream += (
+                    " (stale too: " + ", ".join(f"'{c.block.camera}'" for c in stale_cams[1:]) + ")"
+                )
             other.update(stream=stream, other_side=camera.stale_phrase(e))
             if cameras is not None and len(cameras.inputs) > 1:
                 other["camera"] = camera.block.camera  # which of the policy's cameras

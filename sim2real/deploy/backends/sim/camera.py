@@ -214,7 +214,11 @@ def attach_plant_camera(
         where = f"{mjcf}: images[{i}].camera"
         kind = PlantRgbCamera if block.kind == "rgb" else PlantDepthCamera
         f = faults.get(block.camera) if isinstance(faults, dict) else faults
-        s = seed.get(block.camera, 0) if isinstance(seed, dict) else _nth_seed(seed, i, backend.envs)
+        s = (
+            seed.get(block.camera, 0)
+            if isinstance(seed, dict)
+            else _nth_seed(seed, i, backend.envs)
+        )
         cameras[block.camera] = kind(backend, block, rate, latency, noise, f, s, where, scene=here)
     if len(cameras) == 1:
         (camera,) = cameras.values()

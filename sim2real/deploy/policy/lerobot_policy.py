@@ -150,7 +150,15 @@ class LeRobotChunkPolicy:
         self.units = np.array([u == "deg" for u in units])
         self.lower = np.asarray(robot.position_lower, float)
         self.upper = np.asarray(robot.position_upper, float)
-        self.session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        # one thread, no spinning pool beside the servo loop (OnnxPolicy's session options): on a
+        # loaded 2-core machine the two-camera ACT's call took 48 ms with ONNX Runtime's default
+        # pool and 23 ms with one thread, the same chunk bit for bit (docs/lerobot.md)
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        options.add_session_config_entry("session.inter_op.allow_spinning", "0")
+        self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         self.period = 1.0 / float(c.fps)
         self.dt = float(robot.control_period)
         self.n = robot.n_joints

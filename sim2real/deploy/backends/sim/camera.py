@@ -208,7 +208,8 @@ def attach_plant_camera(
         own = mujoco.mj_name2id(backend.models[0], mujoco.mjtObj.mjOBJ_CAMERA, block.camera) >= 0
         here = None
         if robot is not None and not own:
-            scene = scene or task_scene(robot, backend)  # one scene for the cameras watching
+            if scene is None:  # one scene for every camera watching the task
+                scene = task_scene(robot, backend)
             here = scene
         mjcf = getattr(robot, "mjcf_path", "MJCF") if here is None else here.path
         where = f"{mjcf}: images[{i}].camera"

@@ -237,3 +237,20 @@ def test_a_two_camera_policy_on_the_feetech_emulator_with_two_recorded_videos(tm
         assert cam["frames_taken"][0] >= 15
     limit = float(np.max(so101.jerk_limit))
     assert r["chunks"]["command"]["boundary_max"] <= 1.01 * limit
+
+
+def test_a_state_dict_missing_one_cameras_fields_loads_nothing(tmp_path, so101):
+    """The second camera's history missing from a checkpoint: refused naming the field, and
+    the first camera's state is left as it was (nothing written)."""
+    from sim2real.deploy.core.stateful import StateDictError
+
+    path = two_camera_policy(tmp_path)
+    (a, _), (b, _) = (_rig(so101, path) for _ in range(2))
+    a.runtime.run(60)
+    b.runtime.run(20)
+    state = {k: v for k, v in a.runtime.cameras.state_dict().items() if k != "wrist/ring"}
+    front = b.runtime.cameras.inputs[0]
+    before = front.taken.copy()
+    with pytest.raises(StateDictError, match="ring"):
+        b.runtime.cameras.load_state_dict(state)
+    np.testing.assert_array_equal(front.taken, before)

@@ -286,13 +286,21 @@ class CameraInputs:
         }
 
     def load_state_dict(self, state, env: int | None = None) -> None:
-        """Raises StateDictError: a camera's field missing or of another shape (that camera
-        and those after it not written)."""
-        for c in self.inputs:
-            head = f"{c.block.camera}/"
-            c.load_state_dict(
-                {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
-            )
+        """Raises StateDictError: a camera's field missing or of another shape (nothing
+        written: the cameras loaded before it are put back)."""
+        done = []
+        try:
+            for c in self.inputs:
+                head = f"{c.block.camera}/"
+                before = c.state_dict(env)
+                c.load_state_dict(
+                    {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
+                )
+                done.append((c, before))
+        except Exception:
+            for c, before in done:
+                c.load_state_dict(before, env)
+            raise
 
 
 def exteroception(spec, state, envs: int, robot, backend) -> tuple:

@@ -36,13 +36,22 @@ class CameraSources:
         """Inverse of :meth:`state_dict`.
 
         Raises:
-            StateDictError: a source's field missing or of another shape."""
-        for name, src in self.sources.items():
-            if hasattr(src, "load_state_dict"):
-                head = f"{name}/"
-                src.load_state_dict(
-                    {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
-                )
+            StateDictError: a source's field missing or of another shape (nothing written: the
+                sources loaded before it are put back)."""
+        done = []
+        try:
+            for name, src in self.sources.items():
+                if hasattr(src, "load_state_dict"):
+                    head = f"{name}/"
+                    before = src.state_dict(env)
+                    src.load_state_dict(
+                        {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
+                    )
+                    done.append((src, before))
+        except Exception:
+            for src, before in done:
+                src.load_state_dict(before, env)
+            raise
 
     def show_goal(self, goal) -> None:
         """Every source's task scene shows ``goal`` (a plant camera's ``show_goal``)."""

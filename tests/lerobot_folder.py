@@ -117,11 +117,13 @@ def write_chunk_onnx(
     gain: float = 0.5,
     image_shape=(3, 8, 8),
     camera_key: str = "observation.images.front",
+    cameras=None,
 ) -> Path:
     """A stand-in for an exported ACT with the export's inputs, output and contract (built with
     onnx.helper, no lerobot): action i of a chunk is ``gain`` x the state plus ``i * step_deg`` on
     every entry (plus 0 x the camera image's mean; ``image_shape`` None: no camera; ``camera_key``
-    its camera's key), so a chunk is a ramp and each new chunk starts
+    its camera's key; ``cameras``: several, ``((key, shape), ...)`` in the graph's order, in
+    their place), so a chunk is a ramp and each new chunk starts
     again from the state: a target that jumps back at every chunk boundary, and an arm that settles
     where ``gain`` x state + the ramp holds it (LeRobot's units: degrees, gripper percent)."""
     import onnx
@@ -137,28 +139,35 @@ def write_chunk_onnx(
         helper.make_node("Unsqueeze", ["sg", "axis1"], ["s1"]),
         helper.make_node("Add", ["s1", "offsets"], ["ramp"]),
     ]
-    if image_shape is None:  # a state-only policy
+    if cameras is None:
+        cameras = () if image_shape is None else ((camera_key, tuple(image_shape)),)
+    cameras = tuple((k, tuple(sh)) for k, sh in cameras)
+    if not cameras:  # a state-only policy
         nodes.append(helper.make_node("Identity", ["ramp"], ["action_chunk"]))
     else:
-        nodes += [
-            helper.make_node("ReduceMean", [camera_key], ["m"], keepdims=0),
-            helper.make_node("Mul", ["m", "zero"], ["m0"]),
-            helper.make_node("Add", ["ramp", "m0"], ["action_chunk"]),
-        ]
+        last = "ramp"
+        for i, (key, _) in enumerate(cameras):
+            out = "action_chunk" if i == len(cameras) - 1 else f"r{i}"
+            nodes += [
+                helper.make_node("ReduceMean", [key], [f"m{i}"], keepdims=0),
+                helper.make_node("Mul", [f"m{i}", "zero"], [f"z{i}"]),
+                helper.make_node("Add", [last, f"z{i}"], [out]),
+            ]
+            last = out
     inits = [
         helper.make_tensor("axis1", TensorProto.INT64, [1], [1]),
         helper.make_tensor(
             "offsets", TensorProto.FLOAT, [1, chunk_size, 6], offsets.reshape(-1).tolist()
         ),
         helper.make_tensor("gain", TensorProto.FLOAT, [], [gain]),
-    ] + [helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0])] * (image_shape is not None)
+    ] + [helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0])] * bool(cameras)
     graph = helper.make_graph(
         nodes,
         "chunk_ramp",
         [helper.make_tensor_value_info("observation.state", TensorProto.FLOAT, [1, 6])]
         + [
-            helper.make_tensor_value_info(camera_key, TensorProto.FLOAT, [1, *shape])
-            for shape in ([] if image_shape is None else [image_shape])
+            helper.make_tensor_value_info(key, TensorProto.FLOAT, [1, *shape])
+            for key, shape in cameras
         ],
         [helper.make_tensor_value_info("action_chunk", TensorProto.FLOAT, [1, chunk_size, 6])],
         inits,
@@ -169,12 +178,12 @@ def write_chunk_onnx(
         policy_type="act",
         state_dim=6,
         env_state_dim=0,
-        cameras=() if image_shape is None else ((camera_key, tuple(image_shape)),),
+        cameras=cameras,
         action_dim=6,
         normalization={
             "observation.state": identity,
             "action": identity,
-            **({} if image_shape is None else {camera_key: identity}),
+            **{key: identity for key, _ in cameras},
         },
         n_obs_steps=1,
         chunk_size=chunk_size,

@@ -29,16 +29,16 @@ FIRST_FRAME_S = 10.0
 
 
 def attach_camera(args, backend, spec) -> None:
-    """The camera of a policy's image input: ``--camera-source`` on any backend
-    (:func:`attach_hardware_camera`), else on the plant its MJCF camera
+    """The cameras of a policy's image inputs: ``--camera-source`` on any backend, one per
+    camera (:func:`attach_hardware_camera`), else on the plant its MJCF cameras
     (:func:`attach_plant_camera`); a policy with an image input on a backend that is no plant,
     without ``--camera-source``, is refused.
 
     Raises:
-        ValueError: ``--camera-source`` for a camera the policy lacks, or a hardware camera
-            that does not open or deliver (CameraError), or with ``--backend sim`` off the wall
-            clock (without ``--realtime``); a hardware backend without one; the plant camera's
-            refusals."""
+        ValueError: ``--camera-source`` for a camera the policy lacks, a camera given twice, a
+            camera of the policy left without one, a hardware camera that does not open or
+            deliver (CameraError), or with ``--backend sim`` off the wall clock (without
+            ``--realtime``); a hardware backend without one; the plant camera's refusals."""
     sources = getattr(args, "camera_source", None) or []
     images = getattr(spec, "images", ())
     if sources:
@@ -51,11 +51,18 @@ def attach_camera(args, backend, spec) -> None:
         return
     camera = attach_plant_camera(args, backend, spec)
     if images and camera is None:
+        if len(images) == 1:
+            raise ValueError(
+                f"the policy reads camera '{images[0].camera}' ({images[0].input}); --backend "
+                f"{getattr(args, 'backend', '?')} has none: give --camera-source "
+                f"{images[0].camera}=KIND:WHERE (opencv:INDEX, realsense:SERIAL, ros2:/TOPIC; "
+                "docs/cameras.md)"
+            )
+        names = [b.camera for b in images]
         raise ValueError(
-            f"the policy reads camera '{images[0].camera}' ({images[0].input}); --backend "
-            f"{getattr(args, 'backend', '?')} has none: give --camera-source "
-            f"{images[0].camera}=KIND:WHERE (opencv:INDEX, realsense:SERIAL, ros2:/TOPIC; "
-            "docs/cameras.md)"
+            f"the policy reads cameras {names}; --backend {getattr(args, 'backend', '?')} has "
+            "none: give one --camera-source NAME=KIND:WHERE per camera, NAME one of "
+            f"{', '.join(names)} (opencv:INDEX, realsense:SERIAL, ros2:/TOPIC; docs/cameras.md)"
         )
 
 
@@ -85,42 +92,66 @@ def open_hardware_camera(source, block):
 
 
 def attach_hardware_camera(sources, backend, images, wait: float = FIRST_FRAME_S):
-    """The hardware camera of ``--camera-source`` made the backend's ``camera_source`` (the
-    runtime's camera stage reads it), once its first frame arrived and fits the block; said on
-    stderr; returned.
+    """The hardware cameras of ``--camera-source`` (one per camera of the policy) made the
+    backend's ``camera_source`` (one camera: its driver; several: a
+    :class:`~sim2real.deploy.backends.camera.sources.CameraSources` by name; the runtime's camera
+    stage reads it), once each one's first frame arrived and fits its block; said on stderr;
+    returned.
 
     Raises:
-        ValueError: a source naming no camera of the policy, two sources, a camera that does
-            not open, delivers nothing within ``wait`` s, or a frame the block refuses."""
+        ValueError: a source naming no camera of the policy, a camera given twice, a camera of
+            the policy without a source, a camera that does not open, delivers nothing within
+            ``wait`` s, or a frame the block refuses (one line naming ``--camera-source`` and
+            the expected names)."""
+    from sim2real.deploy.backends.camera.sources import CameraSources
     from sim2real.deploy.spec.camera import CameraError
 
     names = [b.camera for b in images]
     if not images:
         raise CameraError(f"{sources[0].label}: the policy has no image input (no images entry)")
-    if len(sources) > 1:
+    given: dict = {}
+    for source in sources:
+        if source.name not in names:
+            raise CameraError(
+                f"{source.label}: the policy has no camera '{source.name}' (its images entries "
+                f"name {names}); expected NAME to be one of them"
+            )
+        if source.name in given:
+            raise CameraError(
+                f"{source.label}: camera '{source.name}' given twice; expected one "
+                f"--camera-source per camera of {names}"
+            )
+        given[source.name] = source
+    missing = [n for n in names if n not in given]
+    if missing:
         raise CameraError(
-            f"{sources[1].label}: one --camera-source per run (the runtime reads one camera)"
+            f"--camera-source: camera {missing[0]!r} of the policy has none; expected one "
+            f"--camera-source NAME=KIND:WHERE for each of {names}"
         )
-    source = sources[0]
-    if source.name not in names:
-        raise CameraError(
-            f"{source.label}: the policy has no camera '{source.name}' (its images entries name "
-            f"{names}); expected NAME to be one of them"
-        )
-    camera = open_hardware_camera(source, images[names.index(source.name)])
+    opened = {}
     try:
-        camera.feed.wait_first(wait)
+        for name, block in zip(names, images, strict=True):
+            opened[name] = open_hardware_camera(given[name], block)
+        for camera in opened.values():
+            camera.feed.wait_first(wait)
     except Exception:
-        camera.close()
+        for camera in opened.values():
+            camera.close()
         raise
+    camera = opened[names[0]] if len(names) == 1 else CameraSources(opened)
     backend.camera_source = camera
-    print(f"deploy-run: camera '{source.name}' from {source.kind}:{source.where}", file=sys.stderr)
+    for name in names:
+        source = given[name]
+        print(f"deploy-run: camera '{name}' from {source.kind}:{source.where}", file=sys.stderr)
     return camera
 
 
 def close_camera(backend) -> None:
     """Close the backend's hardware camera (its thread and device), if it has one."""
     camera = getattr(backend, "camera_source", None)
+    if hasattr(camera, "sources"):  # several cameras: their drivers
+        camera.close(hardware_only=True)
+        return
     close = getattr(camera, "close", None)
     if close is not None and hasattr(camera, "feed"):  # the plant's camera closes with the plant
         close()
@@ -147,20 +178,29 @@ def attach_plant_camera(args, backend, spec):
             "expected a positive rate and a latency >= 0"
         )
     faults = None
+    images = getattr(spec, "images", ())
     if args.camera_faults == "drawn":  # its own stream: the other draws of --seed stay as they are
-        faults = plant_camera.CameraFaultRanges().sample(np.random.default_rng([args.seed, 99]))
+        # several cameras: camera i's from [seed, 99, i] (the first's as it would be alone)
+        faults = {
+            b.camera: plant_camera.CameraFaultRanges().sample(
+                np.random.default_rng([args.seed, 99] + ([i] if i else []))
+            )
+            for i, b in enumerate(images)
+        }
+        if len(images) <= 1:
+            faults = next(iter(faults.values()), None)
     try:
         camera = plant_camera.attach_plant_camera(
             backend, spec, args.camera_rate, args.camera_latency, faults=faults, seed=args.seed
         )
     except RuntimeError as exc:  # no OpenGL context: one line naming MUJOCO_GL
         raise ValueError(str(exc)) from None
-    if camera is not None:
+    for cam in getattr(camera, "sources", {"": camera}).values() if camera is not None else ():
         print(
-            f"deploy-run: {'colour' if camera.block.kind == 'rgb' else 'depth'} camera "
-            f"'{camera.block.camera}' {camera.block.shape[0]}x"
-            f"{camera.block.shape[1]} at {camera.rate:g} Hz, latency {camera.latency:g} s, "
-            f"{camera.noise.to_dict()}, faults {camera.faults.to_dict()}",
+            f"deploy-run: {'colour' if cam.block.kind == 'rgb' else 'depth'} camera "
+            f"'{cam.block.camera}' {cam.block.shape[0]}x"
+            f"{cam.block.shape[1]} at {cam.rate:g} Hz, latency {cam.latency:g} s, "
+            f"{cam.noise.to_dict()}, faults {cam.faults.to_dict()}",
             file=sys.stderr,
         )
     return camera
@@ -170,12 +210,18 @@ def camera_report(rt, backend) -> dict | None:
     """The report's ``camera``: the runtime's camera stage (frames taken, repeated, the oldest
     age) and the plant camera's counts (``plant``: captured, delivered, dropped, late, frozen)
     or a hardware camera's (``hardware``: its source, frames received, taken, overwritten, the
-    last one's age); None without an image input."""
+    last one's age); several cameras: that section per camera name; None without an image
+    input."""
     if rt.cameras is None:
         return None
-    source = getattr(backend, "camera_source", None)
-    key = "hardware" if hasattr(source, "feed") else "plant"
-    return {**rt.cameras.summary(), key: source.summary() if source is not None else None}
+
+    def section(stage, source) -> dict:
+        key = "hardware" if hasattr(source, "feed") else "plant"
+        return {**stage.summary(), key: source.summary() if source is not None else None}
+
+    if len(rt.cameras.inputs) > 1:
+        return {c.block.camera: section(c, c.source) for c in rt.cameras.inputs}
+    return section(rt.cameras, getattr(backend, "camera_source", None))
 
 
 def show_goal(backend, goal) -> None:

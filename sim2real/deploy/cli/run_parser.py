@@ -300,7 +300,8 @@ def _add_camera_options(p: argparse.ArgumentParser) -> None:
         default=[],
         metavar="NAME=KIND:WHERE",
         help="the frames of the policy's camera NAME (its images entry's camera) from hardware, "
-        "with any backend, in place of the plant's rendering: opencv:INDEX, opencv:/dev/videoN, "
+        "with any backend, in place of the plant's rendering; once per camera of a policy that "
+        "reads several: opencv:INDEX, opencv:/dev/videoN, "
         "opencv:FILE (a video played at its rate), realsense:, realsense:SERIAL, "
         "realsense:FILE.bag, ros2:/TOPIC (sensor_msgs/Image; /TOPIC/compressed: "
         "CompressedImage); ',loop' plays a file again at its end (docs/cameras.md)",

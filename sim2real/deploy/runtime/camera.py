@@ -27,9 +27,21 @@ Stale: an env whose last fresh frame is older than its ``stale_limit`` (or that 
 safe-stopped (``stale_sensor``), as a silent IMU is. The limit is the robot's
 ``Robot.stale_limit`` plus the block's training latency plus ``STALE_FRAMES`` frame periods of its
 rate (a 30 Hz camera is not stale between two frames; our choice: three frames lost in a row are).
+
+Several cameras (a LeRobot policy's ``front`` and ``wrist``): one :class:`CameraInput` per image
+block of the spec, in the spec's order (the observation's layout stays the spec's image blocks), each
+at its own rate and latency with its own stale limit, history and state; :class:`CameraInputs`
+runs them in that order each tick and stops an env when any of them is stale (the stop's record
+names the camera, :mod:`sim2real.deploy.runtime.stale`). Each camera's source is the backend's
+``camera_source`` group's (:class:`sim2real.deploy.backends.camera.sources.CameraSources`) of its
+name, and writes into a frame of the camera's own (two cameras of one kind share the frame's field
+names). One stage per camera rather than one stage of N cameras: a camera's arrays, rate, limit and
+state are the single-camera stage's unchanged, so a one-camera policy runs exactly as before.
 """
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -51,6 +63,8 @@ class CameraInput:
         stale_limit: s, a camera whose last fresh frame is older stops the robot.
         source: ``fill(frame)`` writing the frame's image each tick, or None (the backend
             writes the frame itself).
+        own_frame: The source fills a frame of this camera's own (its ``time`` the tick's),
+            not the runtime's (several cameras: :class:`CameraInputs`).
 
     Attributes:
         image: float32 (envs, *block.input_shape), the graph's image input of the last tick.
@@ -62,9 +76,15 @@ class CameraInput:
     """
 
     def __init__(
-        self, block: DepthImageBlock | RgbImageBlock, envs: int, stale_limit: float, source=None
+        self,
+        block: DepthImageBlock | RgbImageBlock,
+        envs: int,
+        stale_limit: float,
+        source=None,
+        own_frame: bool = False,
     ):
         self.block, self.envs, self.stale_limit, self.source = block, envs, stale_limit, source
+        self._frame = SimpleNamespace(time=0.0) if own_frame and source is not None else None
         self.image_field, self.stamp_field = FRAME_FIELDS[block.kind]
         span = (block.frames - 1) * block.skip + 1
         self._ring = np.zeros((envs, span, *block.input_shape[1:]), np.float32)
@@ -85,6 +105,16 @@ class CameraInput:
         #: ring positions of the graph's frames, oldest first, relative to the newest
         self._back = block.skip * np.arange(block.frames - 1, -1, -1)
 
+    @property
+    def inputs(self) -> tuple[CameraInput, ...]:
+        """The stage's cameras: this one (:class:`CameraInputs` has several)."""
+        return (self,)
+
+    @property
+    def blocks(self) -> tuple:
+        """The image blocks read, in the spec's order: this camera's."""
+        return (self.block,)
+
     def update(self, frame, images: np.ndarray | None = None) -> np.ndarray:
         """Take the frame's image (``image_field``) where it is fresh, write the graph's image input into
         :attr:`image` and into ``images`` (the policy's bound input) when given; returns
@@ -93,12 +123,16 @@ class CameraInput:
         Raises:
             CameraError: a non-numeric frame or one of another shape (module docstring).
         """
+        into = frame
+        if self._frame is not None:  # a camera's own frame (several cameras)
+            into = self._frame
+            into.time = frame.time
         if self.source is not None:
-            self.source.fill(frame)
-        raw = getattr(frame, self.image_field, None)
+            self.source.fill(into)
+        raw = getattr(into, self.image_field, None)
         if raw is not None:
             raw = check_frames(raw, self.block, self.envs, f"frame.{self.image_field}")
-            stamp = np.asarray(getattr(frame, self.stamp_field), dtype=float)
+            stamp = np.asarray(getattr(into, self.stamp_field), dtype=float)
             newer = stamp > self._looked  # NaN: nothing delivered
             for e in np.flatnonzero(newer):
                 self._looked[e] = stamp[e]
@@ -191,6 +225,84 @@ class CameraInput:
         put(self._fields(), state, env)
 
 
+class CameraInputs:
+    """Several cameras of one policy (module docstring): one :class:`CameraInput` per image
+    block, in the spec's order, run in that order each tick.
+
+    Args:
+        inputs: The cameras' stages (each with its own block, rate, stale limit and source).
+        source: The backend's camera group (its ``state_dict`` is the runtime's
+            ``camera_source`` part), or None.
+
+    Attributes:
+        stale: (envs,) bool, this tick's: any camera stale.
+    """
+
+    def __init__(self, inputs, source=None):
+        self.inputs = tuple(inputs)
+        self.source = source
+        self.blocks = tuple(c.block for c in self.inputs)
+        self.envs = self.inputs[0].envs
+        self.stale = np.zeros(self.envs, dtype=bool)
+
+    @property
+    def time_since_fresh(self) -> np.ndarray:
+        """(envs,) s, the oldest of the cameras' last fresh frames' ages."""
+        return np.max([c.time_since_fresh for c in self.inputs], axis=0)
+
+    def update(self, frame, images: dict | None = None) -> np.ndarray:
+        """Each camera's :meth:`CameraInput.update` (into ``images[block.input]`` where
+        ``images``, the policy's bound inputs, has it); returns :attr:`stale`.
+
+        Raises:
+            CameraError: a camera's frame refused (:meth:`CameraInput.update`)."""
+        self.stale[:] = False
+        for c in self.inputs:
+            bound = None if images is None else images.get(c.block.input)
+            self.stale |= c.update(frame, bound)
+        return self.stale
+
+    def feed(self, frame, policy, supervision) -> None:
+        """Every camera's update into the policy's bound inputs, then one safe stop
+        (``stale_sensor``) of the envs where any camera is stale (its record sees them all)."""
+        bind = getattr(policy, "bind_batch", None)
+        if bind is not None:
+            bind(self.envs)
+        supervision.safe_stop(self.update(frame, getattr(policy, "images", {})), "stale_sensor")
+
+    def reset(self, envs: np.ndarray) -> None:
+        """:meth:`CameraInput.reset` of every camera."""
+        for c in self.inputs:
+            c.reset(envs)
+
+    def summary(self) -> dict:
+        """Per camera name, its :meth:`CameraInput.summary`."""
+        return {c.block.camera: c.summary() for c in self.inputs}
+
+    def state_dict(self, env: int | None = None) -> dict:
+        """Each camera's :meth:`CameraInput.state_dict` under ``<camera>/``."""
+        return {
+            f"{c.block.camera}/{k}": v for c in self.inputs for k, v in c.state_dict(env).items()
+        }
+
+    def load_state_dict(self, state, env: int | None = None) -> None:
+        """Raises StateDictError: a camera's field missing or of another shape (nothing
+        written: the cameras loaded before it are put back)."""
+        done = []
+        try:
+            for c in self.inputs:
+                head = f"{c.block.camera}/"
+                before = c.state_dict(env)
+                c.load_state_dict(
+                    {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
+                )
+                done.append((c, before))
+        except Exception:
+            for c, before in done:
+                c.load_state_dict(before, env)
+            raise
+
+
 def exteroception(spec, state, envs: int, robot, backend) -> tuple:
     """The runtime's exteroceptive stages: ``(height map, camera)``, each None where the spec
     has no such input (:func:`sim2real.deploy.runtime.height_map.height_map_stage`,
@@ -201,18 +313,34 @@ def exteroception(spec, state, envs: int, robot, backend) -> tuple:
     )
 
 
-def camera_stage(spec, envs: int, robot, backend) -> CameraInput | None:
-    """The runtime's :class:`CameraInput` for a spec with an image block (its source the
-    backend's ``camera_source`` where it has one), else None.
+def camera_stage(spec, envs: int, robot, backend) -> CameraInput | CameraInputs | None:
+    """The runtime's camera stage for a spec with image blocks (module docstring), else None:
+    one block, a :class:`CameraInput` (its source the backend's ``camera_source`` where it has
+    one); several, a :class:`CameraInputs` of one per block, each fed by the backend's camera
+    group's source of its name (``camera_source.sources``).
 
     Raises:
-        ValueError: a spec with more than one image block (one camera per policy for now).
-    """
+        ValueError: several image blocks and a backend whose ``camera_source`` is no group
+            serving every one of them (one line naming the cameras)."""
     images = getattr(spec, "images", ())
     if not images:
         return None
-    if len(images) > 1:
-        raise ValueError(f"images: {len(images)} image blocks; the runtime reads one camera")
-    block = images[0]
-    limit = float(robot.stale_limit) + block.latency + STALE_FRAMES / block.rate
-    return CameraInput(block, envs, limit, getattr(backend, "camera_source", None))
+
+    def limit(block) -> float:
+        return float(robot.stale_limit) + block.latency + STALE_FRAMES / block.rate
+
+    source = getattr(backend, "camera_source", None)
+    if len(images) == 1:
+        return CameraInput(images[0], envs, limit(images[0]), source)
+    names = [b.camera for b in images]
+    if len(set(names)) < len(names):
+        raise ValueError(f"images: cameras {names}; expected each camera once")
+    served = getattr(source, "sources", {})
+    missing = [n for n in names if n not in served]
+    if missing:
+        raise ValueError(
+            f"images: cameras {names}; the backend delivers no frames of {missing} (expected a "
+            "source for each: the plant's cameras or one --camera-source per camera)"
+        )
+    inputs = [CameraInput(b, envs, limit(b), served[b.camera], own_frame=True) for b in images]
+    return CameraInputs(inputs, source)

@@ -156,24 +156,26 @@ def carry_inputs(runtime, spec):
 
     images = getattr(spec, "images", ())
     current = runtime.cameras
-    rebuild = bool(images) and (current is None or current.block != images[0])
+    rebuild = bool(images) and (current is None or tuple(current.blocks) != tuple(images))
     if rebuild:
-        block = images[0]
         source = getattr(runtime.backend, "camera_source", None)
-        served = getattr(source, "block", None)
-        if source is None or (
-            served is not None
-            and (served.camera, served.kind, tuple(served.shape))
-            != (block.camera, block.kind, tuple(block.shape))
-        ):
-            what = (
-                "none" if source is None else f"'{served.camera}' ({served.kind}, {served.shape})"
-            )
-            raise ValueError(
-                f"switch_policy: the policy's {block.kind} camera '{block.camera}' "
-                f"{tuple(block.shape)} is not the backend's camera ({what}): attach it for "
-                "this policy"
-            )
+        group = getattr(source, "sources", None)  # several cameras: the backend's by name
+        for block in images:
+            own = source if len(images) == 1 else (group or {}).get(block.camera)
+            served = getattr(own, "block", None)
+            if own is None or (
+                served is not None
+                and (served.camera, served.kind, tuple(served.shape))
+                != (block.camera, block.kind, tuple(block.shape))
+            ):
+                what = (
+                    "none" if own is None else f"'{served.camera}' ({served.kind}, {served.shape})"
+                )
+                raise ValueError(
+                    f"switch_policy: the policy's {block.kind} camera '{block.camera}' "
+                    f"{tuple(block.shape)} is not the backend's camera ({what}): attach it for "
+                    "this policy"
+                )
     tick = runtime.base_tick
     phased = any(b.name == "motion_phase" for b in spec.observation_blocks)
     if phased and not hasattr(tick, "phase_clock"):

@@ -96,18 +96,28 @@ class StaleStops:
         if height_map is not None and height_map.time_since_fresh[e] > limit:
             map_s = float(height_map.time_since_fresh[e])
         camera_s, cameras = None, getattr(rt, "cameras", None)
-        if cameras is not None and cameras.stale[e]:
-            camera_s = float(cameras.time_since_fresh[e])
+        # the stale cameras (several: each with its own limit), the oldest first
+        stale_cams = [] if cameras is None else [c for c in cameras.inputs if c.stale[e]]
+        stale_cams.sort(key=lambda c: -float(c.time_since_fresh[e]))
+        if stale_cams:
+            camera_s = float(stale_cams[0].time_since_fresh[e])
         without = max([*joints.values(), imu_s or 0.0, map_s or 0.0, camera_s or 0.0])
         this_tick = self._frame_view(e, stale)
         ours = self._our_side(without)
         other = stale_context(rt.backend, e)
         other["joints"] = {n: t for n, t in other.get("joints", {}).items() if n in joints}
         if camera_s is not None and not joints and imu_s is None and map_s is None:
-            kind = "colour" if cameras.block.kind == "rgb" else "depth"
-            stream = f"{kind} camera '{cameras.block.camera}'"  # frozen or silent
-            other.update(stream=stream, other_side=cameras.stale_phrase(e))
-            source = cameras.source  # a plant camera says which of its faults came before
+            camera = stale_cams[0]  # the oldest; the others named after it
+            kind = "colour" if camera.block.kind == "rgb" else "depth"
+            stream = f"{kind} camera '{camera.block.camera}'"  # frozen or silent
+            if len(stale_cams) > 1:
+                stream += (
+                    " (stale too: " + ", ".join(f"'{c.block.camera}'" for c in stale_cams[1:]) + ")"
+                )
+            other.update(stream=stream, other_side=camera.stale_phrase(e))
+            if cameras is not None and len(cameras.inputs) > 1:
+                other["camera"] = camera.block.camera  # which of the policy's cameras
+            source = camera.source  # a plant camera says which of its faults came before
             if source is not None and hasattr(source, "recent"):
                 done = other["camera_faults"] = source.recent(e, float(rt.time))
                 other["other_side"] += (

@@ -7,7 +7,8 @@ their own, the goal marker at the run's goal.
 
 :meth:`SceneCameras.capture` gives the frames a LeRobot dataset records (uint8 (rows, columns, 3)
 R, G, B). A policy run renders the same scene's cameras through the runtime's camera stage
-(:func:`sim2real.deploy.backends.sim.camera.attach_plant_camera`, one camera per policy).
+(:func:`sim2real.deploy.backends.sim.camera.attach_plant_camera`: one plant camera per camera key of
+the policy, each through its own camera stage).
 """
 
 from __future__ import annotations

@@ -250,6 +250,20 @@ def camera_lines(s: dict) -> list[str]:
     c = s.get("camera")
     if not c:
         return []
+    stops = c.get("stale_stops", [])
+    v = c.get("verdict")
+    count = v["stops"]["count"] if v else len(stops)
+    lines = [camera_line(s["id"], cam, count) for cam in (c.get("cameras") or {0: c}).values()]
+    if v:
+        lines += verdict_lines(v)
+    for stop in stops[:3]:
+        lines.append(f"  camera stop  at {stop['t_s']:.1f} s: {stop.get('verdict')}")
+    return lines
+
+
+def camera_line(session: str, c: dict, count: int) -> str:
+    """One camera of a session (its ``camera`` section, or one camera's of several): the
+    faults it met, the oldest frame used, the session's stale-camera stops ``count``."""
     f = c["faults"]
     knocked = np.degrees(np.abs(f["extrinsic"])).max()
     met = [
@@ -261,19 +275,11 @@ def camera_lines(s: dict) -> list[str]:
     ]
     if c.get("kind") == "rgb" and f.get("lighting", 1.0) != 1.0:
         met.append(f"light x{f['lighting']:.2f}")
-    stops = c.get("stale_stops", [])
-    v = c.get("verdict")
-    count = v["stops"]["count"] if v else len(stops)
-    lines = [
-        f"  camera       {s['id']}: '{c['camera']}' {c['rate_hz']:g} Hz, {c['frames']} frames; "
+    return (
+        f"  camera       {session}: '{c['camera']}' {c['rate_hz']:g} Hz, {c['frames']} frames; "
         f"met {', '.join(met)}; oldest frame used {1000 * c['oldest_s']:.0f} ms; safe stops "
         f"for a stale camera {count}"
-    ]
-    if v:
-        lines += verdict_lines(v)
-    for stop in stops[:3]:
-        lines.append(f"  camera stop  at {stop['t_s']:.1f} s: {stop.get('verdict')}")
-    return lines
+    )
 
 
 def verdict_lines(v: dict) -> list[str]:

@@ -13,6 +13,13 @@ none: its camera only has its sensor model. A frame that comes late or frozen is
 runtime's camera stage (:mod:`sim2real.deploy.runtime.camera`): stale past its limit, a safe stop
 ``stale_sensor`` like any sensor.
 
+A policy with several cameras (a LeRobot export's ``front`` and ``wrist``) has one plant camera per
+image block, each with faults of its own: the first camera draws from the session's ``camera``
+stream as a lone camera does, camera ``i`` from ``default_rng([seed, STREAMS["camera"], i])``
+(:func:`camera_rng`); the result's ``camera`` section then holds ``cameras`` (one section per
+camera name) beside the session's verdict, whose labels name the camera
+(:mod:`sim2real.eval.soak.camera_verdict`).
+
 Hooks (the only lines outside this module): :class:`sim2real.eval.soak.batch.SessionBatch`
 calls :func:`attach_session_cameras` before it makes its runtime;
 :func:`sim2real.eval.soak.result.session_result` adds :func:`camera_result`'s section.
@@ -20,12 +27,14 @@ calls :func:`attach_session_cameras` before it makes its runtime;
 
 from __future__ import annotations
 
+import numpy as np
+
 from sim2real.deploy.backends.sim.camera import (
     CameraFaultRanges,
     CameraFaults,
     attach_plant_camera,
 )
-from sim2real.eval.world.session_draw import session_rng
+from sim2real.eval.world.session_draw import STREAMS, session_rng
 
 #: The session stream the camera draws from (``sim2real.eval.world.session_draw.STREAMS``).
 CAMERA_STREAM = "camera"
@@ -43,28 +52,47 @@ def session_camera_faults(
     return (ranges or CameraFaultRanges()).sample(rng)
 
 
+def camera_rng(seed: int, i: int = 0) -> np.random.Generator:
+    """The generator of camera ``i`` of session ``seed`` (module docstring): the session's
+    ``camera`` stream for the first, ``default_rng([seed, STREAMS["camera"], i])`` after it.
+
+    Raises:
+        ValueError: a negative seed."""
+    rng = session_rng(seed, CAMERA_STREAM)  # checks the seed
+    return rng if i == 0 else np.random.default_rng([int(seed), STREAMS[CAMERA_STREAM], i])
+
+
 def attach_session_cameras(backend, spec, configs, ranges: CameraFaultRanges | None = None):
     """For a batch's plant ``backend`` (one env per session of ``configs``, in order) and a
     policy ``spec`` with an image block: the plant's camera, each env with its session's drawn
     faults (none where the session runs without faults) and its session's generator, made the
-    runtime's frame source; None without an image block.
+    runtime's frame source (several image blocks: one camera each, each with its own faults
+    and generator, :func:`camera_rng`); None without an image block.
 
     Raises:
         CameraError: the robot's MJCF has no camera of the block's name.
         RuntimeError: no OpenGL context (naming ``MUJOCO_GL``).
     """
-    if not getattr(spec, "images", ()):
+    images = getattr(spec, "images", ())
+    if not images:
         return None
-    rngs = [session_rng(c.seed, CAMERA_STREAM) for c in configs]
-    faults = [
-        session_camera_faults(c.seed, ranges, rng) if c.faults else CameraFaults()
-        for c, rng in zip(configs, rngs, strict=True)
-    ]
-    return attach_plant_camera(backend, spec, faults=faults, seed=rngs)
+    faults, seeds = {}, {}
+    for i, block in enumerate(images):
+        rngs = [camera_rng(c.seed, i) for c in configs]
+        faults[block.camera] = [
+            session_camera_faults(c.seed, ranges, rng) if c.faults else CameraFaults()
+            for c, rng in zip(configs, rngs, strict=True)
+        ]
+        seeds[block.camera] = rngs
+    if len(images) == 1:
+        (faults,), (seeds,) = faults.values(), seeds.values()
+    return attach_plant_camera(backend, spec, faults=faults, seed=seeds)
 
 
 def camera_result(session) -> dict:
-    """The session result's ``camera`` section, ``{}`` without a camera: ``{"camera": {camera,
+    """The session result's ``camera`` section, ``{}`` without a camera (several cameras:
+    ``{"camera": {cameras: {name: the per-camera fields below}, verdict, stale_stops}}``):
+    ``{"camera": {camera,
     kind, rate_hz, latency_s, faults (the drawn CameraFaults), frames, delivered, dropped,
     spiked, frozen (the plant's counts), frames_taken, frames_repeated (the runtime's: fresh
     frames and frozen ones refused), oldest_s (the largest age of the last fresh frame, s),
@@ -78,12 +106,19 @@ def camera_result(session) -> dict:
     stage = getattr(b.rt, "cameras", None)
     if source is None or stage is None:
         return {}
-    out = {
-        **source.summary(e),
-        "frames_taken": int(stage.taken[e]),
-        "frames_repeated": int(stage.repeated[e]),
-        "oldest_s": round(float(stage.oldest[e]), 6),
-    }
+
+    def one(src, st) -> dict:
+        return {
+            **src.summary(e),
+            "frames_taken": int(st.taken[e]),
+            "frames_repeated": int(st.repeated[e]),
+            "oldest_s": round(float(st.oldest[e]), 6),
+        }
+
+    if len(stage.inputs) == 1:
+        out = one(source, stage)
+    else:  # several cameras: a section each (module docstring)
+        out = {"cameras": {c.block.camera: one(c.source, c) for c in stage.inputs}}
     verdict = getattr(b, "camera_verdict", None)
     if verdict is not None:
         out["verdict"] = verdict.section(e, out)

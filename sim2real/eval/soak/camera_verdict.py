@@ -59,11 +59,22 @@ FRAME_FAULTS = (("frozen", "frozen"), ("dropped", "dropped"), ("spiked", "late")
 
 def fault_label(recent: dict | None) -> str:
     """The per-frame camera faults of a ``PlantCamera.recent`` window as one label:
-    ``frozen``, ``dropped``, ``late`` joined by ``+`` in that order, ``none`` without."""
+    ``frozen``, ``dropped``, ``late`` joined by ``+`` in that order, ``none`` without; a
+    window of several cameras (``by_camera``): each faulted camera's name and label, joined by
+    ``; `` (``wrist frozen; front dropped``)."""
     if not recent:
         return "none"
+    if "by_camera" in recent:
+        labels = ((name, fault_label(r)) for name, r in recent["by_camera"].items())
+        return "; ".join(f"{name} {label}" for name, label in labels if label != "none") or "none"
     kinds = [name for key, name in FRAME_FAULTS if recent.get(key)]
     return "+".join(kinds) or "none"
+
+
+def fault_kind(label: str) -> str:
+    """A stop's first per-frame fault (``frozen``, ``dropped``, ``late``) of its label, the
+    camera's name (several cameras) dropped."""
+    return label.rsplit(" ", 1)[-1].split("+")[0]
 
 
 def throughout(faults: dict, kind: str) -> list[str]:
@@ -103,6 +114,8 @@ class CameraVerdict:
 
     def __init__(self, batch):
         self.batch, self.source = batch, batch.camera
+        #: several cameras: the plant's by name (their faults are told apart), else None
+        self.sources = getattr(batch.camera, "sources", None)
         self.state = [_fresh() for _ in range(batch.rt.envs)]
         batch.rt.stale_stops.on_record = self.stale_stop
 
@@ -115,7 +128,13 @@ class CameraVerdict:
 
     # ------------------------------------------------------------------ events
     def _recent(self, e: int, t: float, window: float = WINDOW) -> dict:
-        return self.source.recent(e, t, window)
+        """The camera's ``recent`` faults; several cameras: their counts summed, and each
+        camera's under ``by_camera``."""
+        if self.sources is None:
+            return self.source.recent(e, t, window)
+        per = {name: src.recent(e, t, window) for name, src in self.sources.items()}
+        counts = {k: sum(r[k] for r in per.values()) for k in ("dropped", "spiked", "frozen")}
+        return {"window_s": window, **counts, "by_camera": per}
 
     def stale_stop(self, record: dict) -> None:
         """A ``stale_sensor`` stop's record (``StaleStops.on_record``): counted when the camera
@@ -127,6 +146,9 @@ class CameraVerdict:
         e = record["env"]
         followed = record["other_side"].get("camera_faults")
         label = fault_label(followed)
+        camera = record["other_side"].get("camera")  # several cameras: the stale one
+        if camera is not None and label != "none":
+            label = f"{camera} {label}"
         stops = self.state[e]["stops"]
         stops["count"] += 1
         stops["by_fault"][label] = stops["by_fault"].get(label, 0) + 1
@@ -247,23 +269,31 @@ class CameraVerdict:
         ``not_kept``)."""
         st, s = self.state[e], self.batch.sessions[e]
         stops = st["stops"]
-        faults = camera["faults"]
-        spells = math.ceil(camera["frozen"] / max(int(faults["freeze_frames"]), 1))
+        subs = camera.get("cameras") or {None: camera}  # several cameras: each one's counts
+        spells = sum(
+            math.ceil(c["frozen"] / max(int(c["faults"]["freeze_frames"]), 1))
+            for c in subs.values()
+        )
         frames = {
-            "frozen": camera["frozen"],
-            "dropped": camera["dropped"],
-            "late": camera["spiked"],
+            "frozen": sum(c["frozen"] for c in subs.values()),
+            "dropped": sum(c["dropped"] for c in subs.values()),
+            "late": sum(c["spiked"] for c in subs.values()),
         }
         after = {  # by the stop's first fault: a frozen spell, else dropped, else late frames
-            kind: sum(n for label, n in stops["by_fault"].items() if label.split("+")[0] == kind)
+            kind: sum(n for label, n in stops["by_fault"].items() if fault_kind(label) == kind)
             for kind in frames
         }
+        session_wide = [
+            f"{name}: {w}" if name is not None else w
+            for name, c in subs.items()
+            for w in throughout(c["faults"], c.get("kind", "depth"))
+        ]
         injected = [x for x in s.latches if x.get("injected")]
         own = [ev for ev in s.fault_events if ev.get("camera_stop")]
         return {
             "survived": [
                 *(k for k, n in frames.items() if n and not after[k]),
-                *throughout(faults, camera.get("kind", "depth")),
+                *session_wide,
             ],
             "stopped_safely": {k: n for k, n in after.items() if n},
             "frames": {**frames, "frozen_spells": spells},

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
+from sim2real.deploy.backends.camera.sources import CameraSources
 from sim2real.deploy.backends.sim.depth_render import DepthRenderer
 from sim2real.deploy.backends.sim.plant_camera import CameraFaultRanges, CameraFaults, PlantCamera
 from sim2real.deploy.backends.sim.rgb_camera import PlantRgbCamera
@@ -174,34 +175,66 @@ def attach_plant_camera(
     noise=None,
     faults=None,
     seed=0,
-) -> PlantCamera | None:
-    """For a simulated plant (its ``models``, ``datas``) and a spec with an image block: the
-    plant's camera (:class:`PlantDepthCamera` for a depth block,
+):
+    """For a simulated plant (its ``models``, ``datas``) and a spec with image blocks: the
+    plant's camera of each block (:class:`PlantDepthCamera` for a depth block,
     :class:`sim2real.deploy.backends.sim.rgb_camera.PlantRgbCamera` for an RGB one; a camera the
     robot's MJCF lacks renders the robot's task scene where robot.toml names one,
     :func:`~sim2real.deploy.backends.sim.task_scene.task_scene`: its goal marker then shows
     ``camera.scene.goal``, which the run sets) made the runtime's frame source
-    (``backend.camera_source``,
-    :func:`sim2real.deploy.runtime.camera.camera_stage`) and returned; else None (a backend that
-    is no plant: its own driver writes the frames). ``noise``: the block's sensor model (None:
-    the datasheet's); ``faults`` and ``seed`` as :class:`PlantCamera` takes them.
+    (``backend.camera_source``, :func:`sim2real.deploy.runtime.camera.camera_stage`) and
+    returned; several blocks: one camera each, at each block's rate and latency, in a
+    :class:`~sim2real.deploy.backends.camera.sources.CameraSources` by camera name. None for a
+    backend that is no plant (its own driver writes the frames). ``rate``, ``latency``: every
+    camera's, None: each block's. ``noise``: the blocks' sensor model (None: the datasheet's).
+    ``faults`` and ``seed`` as :class:`PlantCamera` takes them, or a dict of them by camera
+    name; one value for several cameras: the faults are every camera's, the seed the first
+    camera's and camera ``i``'s stream ``default_rng([seed, i])`` (a generator per env:
+    ``generator.spawn(1)``), so a first camera draws as it would alone.
 
     Raises:
-        CameraError: the robot's MJCF (or task scene) has no camera of the block's name (one
-            line naming the file and ``images[0].camera``). ValueError: a task scene that does
+        CameraError: the robot's MJCF (or task scene) has no camera of a block's name (one
+            line naming the file and ``images[i].camera``). ValueError: a task scene that does
             not fit the robot.
     """
     images = getattr(spec, "images", ())
     if not images or not all(hasattr(backend, a) for a in ("models", "datas")):
         return None
     robot = getattr(backend, "robot", None)
-    # a camera of the robot's own MJCF (on its head, its wrist) renders the plant; another (one
-    # watching the task) the robot's task scene, where robot.toml names one
-    own = mujoco.mj_name2id(backend.models[0], mujoco.mjtObj.mjOBJ_CAMERA, images[0].camera) >= 0
-    scene = None if robot is None or own else task_scene(robot, backend)
-    mjcf = getattr(robot, "mjcf_path", "MJCF") if scene is None else scene.path
-    where = f"{mjcf}: images[0].camera"
-    kind = PlantRgbCamera if images[0].kind == "rgb" else PlantDepthCamera
-    camera = kind(backend, images[0], rate, latency, noise, faults, seed, where, scene=scene)
+    cameras, scene = {}, None
+    for i, block in enumerate(images):
+        # a camera of the robot's own MJCF (on its head, its wrist) renders the plant; another
+        # (one watching the task) the robot's task scene, where robot.toml names one
+        own = mujoco.mj_name2id(backend.models[0], mujoco.mjtObj.mjOBJ_CAMERA, block.camera) >= 0
+        here = None
+        if robot is not None and not own:
+            if scene is None:  # one scene for every camera watching the task
+                scene = task_scene(robot, backend)
+            here = scene
+        mjcf = getattr(robot, "mjcf_path", "MJCF") if here is None else here.path
+        where = f"{mjcf}: images[{i}].camera"
+        kind = PlantRgbCamera if block.kind == "rgb" else PlantDepthCamera
+        f = faults.get(block.camera) if isinstance(faults, dict) else faults
+        s = (
+            seed.get(block.camera, 0)
+            if isinstance(seed, dict)
+            else _nth_seed(seed, i, backend.envs)
+        )
+        cameras[block.camera] = kind(backend, block, rate, latency, noise, f, s, where, scene=here)
+    if len(cameras) == 1:
+        (camera,) = cameras.values()
+    else:
+        camera = CameraSources(cameras)
     backend.camera_source = camera
     return camera
+
+
+def _nth_seed(seed, i: int, envs: int):
+    """Camera ``i``'s seed of a run's one ``seed`` (:func:`attach_plant_camera`): the seed for
+    the first camera; an int's ``default_rng([seed, i])`` for every env, or each env's
+    generator's ``spawn(1)``."""
+    if i == 0:
+        return seed
+    if isinstance(seed, int | np.integer):
+        return [np.random.default_rng([int(seed), i])] * envs
+    return [g.spawn(1)[0] for g in seed]

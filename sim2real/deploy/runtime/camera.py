@@ -29,14 +29,7 @@ safe-stopped (``stale_sensor``), as a silent IMU is. The limit is the robot's
 rate (a 30 Hz camera is not stale between two frames; our choice: three frames lost in a row are).
 
 Several cameras (a LeRobot policy's ``front`` and ``wrist``): one :class:`CameraInput` per image
-block of the spec, in the spec's order (the observation's layout stays the spec's image blocks), each
-at its own rate and latency with its own stale limit, history and state; :class:`CameraInputs`
-runs them in that order each tick and stops an env when any of them is stale (the stop's record
-names the camera, :mod:`sim2real.deploy.runtime.stale`). Each camera's source is the backend's
-``camera_source`` group's (:class:`sim2real.deploy.backends.camera.sources.CameraSources`) of its
-name, and writes into a frame of the camera's own (two cameras of one kind share the frame's field
-names). One stage per camera rather than one stage of N cameras: a camera's arrays, rate, limit and
-state are the single-camera stage's unchanged, so a one-camera policy runs exactly as before.
+block, run in the spec's order by :class:`CameraInputs` (its docstring says how).
 """
 
 from __future__ import annotations
@@ -226,8 +219,16 @@ class CameraInput:
 
 
 class CameraInputs:
-    """Several cameras of one policy (module docstring): one :class:`CameraInput` per image
-    block, in the spec's order, run in that order each tick.
+    """Several cameras of one policy (a LeRobot policy's ``front`` and ``wrist``): one
+    :class:`CameraInput` per image block of the spec, in the spec's order (the observation's layout
+    stays the spec's image blocks), run in that order each tick; an env is stopped when any of them
+    is stale (the stop's record names the camera, :mod:`sim2real.deploy.runtime.stale`).
+
+    Each camera's source is the backend's ``camera_source`` group's
+    (:class:`sim2real.deploy.backends.camera.sources.CameraSources`) of its name, and writes into a
+    frame of the camera's own (two cameras of one kind share the frame's field names). One stage per
+    camera rather than one stage of N cameras: a camera's arrays, rate, limit and state are the
+    single-camera stage's unchanged, so a one-camera policy runs exactly as before.
 
     Args:
         inputs: The cameras' stages (each with its own block, rate, stale limit and source).

@@ -27,9 +27,7 @@ Stale: an env whose last fresh frame is older than its ``stale_limit`` (or that 
 safe-stopped (``stale_sensor``), as a silent IMU is. The limit is the robot's
 ``Robot.stale_limit`` plus the block's training latency plus ``STALE_FRAMES`` frame periods of its
 rate (a 30 Hz camera is not stale between two frames; our choice: three frames lost in a row are).
-
-Several cameras (a LeRobot policy's ``front`` and ``wrist``): one :class:`CameraInput` per image
-block, run in the spec's order by :class:`CameraInputs` (its docstring says how).
+Several cameras: one :class:`CameraInput` per image block, run by :class:`CameraInputs`.
 """
 
 from __future__ import annotations

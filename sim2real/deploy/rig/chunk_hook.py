@@ -87,8 +87,9 @@ class ChunkHook(RunHook):
             self.starts += 1
             self._stretch_starts.append(k)
             self._since, self._last_policy, self._chunked = 0, None, new
-        elif new and not self._chunked:  # async: the stretch's first chunk, taken
+        elif new and not self._chunked:  # async: the stretch's first chunk, taken from rest
             self._since, self._chunked = 0, True
+            self._stretch_starts.append(k)  # its jump from the held joints is no chunk's
         elif new:
             self.boundaries.append(k)
             self._stretch.append(self._since)

@@ -253,7 +253,8 @@ def test_async_with_temporal_ensembling_is_refused_in_one_line(tmp_path, capsys)
 def test_async_runs_no_network_call_on_the_servo_thread_on_the_feetech_emulator(tmp_path):
     """The same export on the bus, sync then async: sync runs every network call inside a
     servo tick; async runs none there (counted, not timed: holds on a busy machine), at the
-    same cadence. A loaded machine may stop a run safely (a stale reading): judged up to there."""
+    same cadence. A loaded machine may stop a run safely (a stale reading, a late chunk): judged
+    up to there."""
     from sim2real.deploy.backends.emulator import ServoBusEmulator
 
     pytest.importorskip("scservo_sdk", reason="the Feetech SDK (extra 'servo') is not installed")
@@ -270,10 +271,13 @@ def test_async_runs_no_network_call_on_the_servo_thread_on_the_feetech_emulator(
                 "--overrun-limit", "1", "--inference", inference,
             )  # fmt: skip
         assert r["faults"]["by_cause"]["hard_limit"] == 0
-        assert r["faults"]["safe_stops"] == r["faults"]["by_cause"]["stale_sensor"]
+        by = r["faults"]["by_cause"]  # a loaded machine: a stale reading, a late chunk
+        assert r["faults"]["safe_stops"] == by["stale_sensor"] + by["overrun"]
         reports[inference] = r["chunks"]
     sync, asyn = reports["sync"], reports["async"]
-    assert sync["network_calls"] > 3 and sync["network_calls_on_servo_thread"] == sync["network_calls"]
+    assert (
+        sync["network_calls"] > 3 and sync["network_calls_on_servo_thread"] == sync["network_calls"]
+    )
     assert asyn["network_calls"] > 3 and asyn["network_calls_on_servo_thread"] == 0
-    assert asyn["late_chunks"] == 0 and asyn["policy_ticks_per_chunk"] == [4]
+    assert asyn["policy_ticks_per_chunk"] == [4]
     assert _workers() == []

@@ -85,9 +85,7 @@ def load_policies(files: dict[str, str], robot, spec=None, inference: str = "syn
 
     policies, first = {}, None
     for name, path in files.items():
-        policy = _lerobot_policy(path, robot, spec, inference) or OnnxPolicy(
-            path, robot, spec=spec
-        )
+        policy = _lerobot_policy(path, robot, spec, inference) or OnnxPolicy(path, robot, spec=spec)
         driven, _ = drive_robot(robot, policy.spec)
         drive = (
             policy.spec.action.mode,

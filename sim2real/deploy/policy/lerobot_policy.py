@@ -16,18 +16,12 @@ first RUNNING tick is a policy tick with a new chunk, so the policy sees the rob
 queue filled during the ramp. The state (each env's queue or ensemble, the time to its next policy
 tick, the held action) is the stage's (:meth:`state_dict` / :meth:`load_state_dict`).
 
-Inference (``inference``): ``"sync"`` calls the graph inside the servo tick that needs a chunk
-(that tick lasts as long as the call: LeRobot's own record loop, whose servos hold their last goal
-while ``select_action`` computes). ``"async"`` calls it on a worker thread
-(:class:`~sim2real.deploy.policy.chunk_worker.ChunkWorker`) with a fixed latency of one policy
-period, the same on every backend: the chunk asked at a policy tick from that tick's observation
-is taken at the next policy tick (awaited there; on the wall clock for at most
-:attr:`LeRobotChunkPolicy.late_limit`, else a late chunk: :attr:`late`, which the chunk hook
-stops safely, cause ``overrun``); its first action, whose time has passed, is dropped; it then
-plays ``min(n_action_steps, chunk_size - 1)`` actions, one per policy tick, and the next chunk
-is asked at the tick that plays its last, so that action is the held target while the next is
-computed. After a reset the first tick asks from the robot's measured joints and holds them.
-Temporal ensembling is refused with async (every tick would take a chunk one period late).
+Inference (``inference``): ``"sync"`` calls the graph inside the servo tick that needs a chunk;
+``"async"`` on a worker thread (:class:`~sim2real.deploy.policy.chunk_worker.ChunkWorker`), one
+policy period of latency on every backend: the chunk asked at a policy tick is taken (awaited) at
+the next, its first action dropped (its time has passed), ``min(n_action_steps, chunk_size - 1)``
+actions played, the next asked at the tick of the last, held meanwhile
+(:meth:`LeRobotChunkPolicy._policy_tick_async`; a late chunk: :attr:`LeRobotChunkPolicy.late`).
 
 Observation, action and units: :class:`LeRobotChunkPolicy`.
 """

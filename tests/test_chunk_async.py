@@ -164,11 +164,13 @@ class _Gate:
     when its chunk is due, without a timed wait)."""
 
     def __init__(self, session):
-        self.session, self.open = session, threading.Event()
+        self.session, self.open, self.answered = session, threading.Event(), 0
 
     def run(self, names, feed):
         self.open.wait()
-        return self.session.run(names, feed)
+        out = self.session.run(names, feed)
+        self.answered += 1
+        return out
 
 
 def test_a_late_chunk_stops_the_robot_safely_as_an_overrun(tmp_path, so101):
@@ -194,6 +196,30 @@ def test_a_late_chunk_stops_the_robot_safely_as_an_overrun(tmp_path, so101):
     finally:
         gate.open.set()
         rig.close()
+    assert _workers() == []
+
+
+def test_a_reset_on_the_wall_clock_does_not_wait_for_the_pending_call(tmp_path, so101):
+    """The end of RAMP_IN on hardware: the request pending is forgotten, the servo tick goes
+    on (the gated call is still running when reset returns); the next request is answered."""
+    path = write_chunk_onnx(tmp_path / "a.onnx", chunk_size=6, n_action_steps=4, image_shape=None)
+    policy = LeRobotChunkPolicy(path, so101, inference="async")
+    gate = _Gate(policy.session)
+    policy.session, policy.wall_clock = gate, True
+    obs = _obs(policy, np.zeros(6))
+    try:
+        policy(obs)  # a policy tick: asks
+        assert policy.pending[0]
+        policy.reset(np.ones(1, bool))
+        assert gate.answered == 0 and not policy.pending[0]  # returned, the call still held
+        gate.open.set()
+        policy.wall_clock = False  # lockstep: the next take waits for its chunk
+        for _ in range(8):
+            policy(obs)
+        assert policy.calls[0] == 1 and not policy.late[0]
+    finally:
+        gate.open.set()
+        policy.close()
     assert _workers() == []
 
 

@@ -250,16 +250,24 @@ class LeRobotChunkPolicy:
         for e in np.flatnonzero(mask):
             self.chunks[e].reset()
         self._wait[mask] = 0.0
-        self._drain(np.flatnonzero(mask))
+        # on the wall clock (the end of RAMP_IN, a resume) a pending request is forgotten, not
+        # waited for: the servo tick does not stall; the next request queues behind it. Before
+        # the run's clock (the runtime's warm-up call) and in lockstep it is waited for.
+        self._drain(np.flatnonzero(mask), wait=not self.wall_clock)
         self.late[mask] = False
 
-    def _drain(self, envs) -> None:
-        """Forget the pending requests of ``envs``, each waited for first (at most one network
-        call's time), so the worker's next request starts at once."""
+    def _drain(self, envs, wait: bool = True) -> None:
+        """Forget the pending requests of ``envs`` (``wait``: each waited for first, at most one
+        network call's time, so the worker's next request starts at once)."""
         for e in envs:
             request, self._pending[e] = self._pending[e], None
-            if request is not None:
+            if request is not None and wait:
                 request.wait(None)
+
+    @property
+    def pending(self) -> np.ndarray:
+        """(envs,) bool: async, a chunk asked and not taken yet in that env."""
+        return np.array([r is not None for r in self._pending], dtype=bool)
 
     def close(self) -> None:
         """End the worker thread (async inference; the run's end, every exit path): the call

@@ -163,7 +163,8 @@ def run_policies(args, robot) -> dict:
     if args.spec:
         spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
     if args.excitation is None:
-        return load_policies(args.policies, robot, spec)  # --policy [NAME=]FILE, repeated
+        # --policy [NAME=]FILE, repeated; --inference for a LeRobot export's chunks
+        return load_policies(args.policies, robot, spec, inference=args.inference)
     from sim2real.deploy.policy.excitation import Excitation, ExcitationPolicy
 
     excitation = ExcitationPolicy(robot, Excitation.load(args.excitation))

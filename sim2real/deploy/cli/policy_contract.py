@@ -34,7 +34,12 @@ def contract_messages(policy) -> list[str]:
         cams = ", ".join(f"'{b.camera}' {b.shape[0]}x{b.shape[1]} RGB" for b in policy.spec.images)
         out.append(
             f"deploy-run: note: LeRobot {lerobot.policy_type} policy at {1 / policy.period:g} Hz "
-            f"beside the servo loop, {scheme}; camera {cams or 'none'}"
+            f"beside the servo loop, {scheme}; camera {cams or 'none'}; "
+            + (
+                f"async inference: one policy period ({1e3 * policy.period:g} ms) of latency"
+                if getattr(policy, "inference", "sync") == "async"
+                else "sync inference: the network call inside the servo tick"
+            )
         )
     if any(b.name == "base_linear_velocity" for b in policy.spec.observation_blocks):
         terms = contract.base_velocity_terms() if contract is not None else []

@@ -72,8 +72,9 @@ def parse_policies(values: list[str]) -> dict[str, str]:
     return out
 
 
-def load_policies(files: dict[str, str], robot, spec=None) -> dict:
-    """{name: OnnxPolicy} of ``files`` for ``robot`` (``spec``: --spec, for every file).
+def load_policies(files: dict[str, str], robot, spec=None, inference: str = "sync") -> dict:
+    """{name: OnnxPolicy} of ``files`` for ``robot`` (``spec``: --spec, for every file;
+    ``inference``: --inference, a LeRobot export's network call, ``"sync"`` or ``"async"``).
 
     Raises:
         ValueError: a policy that does not load or fit the robot, or that drives it another way
@@ -84,7 +85,7 @@ def load_policies(files: dict[str, str], robot, spec=None) -> dict:
 
     policies, first = {}, None
     for name, path in files.items():
-        policy = _lerobot_policy(path, robot, spec) or OnnxPolicy(path, robot, spec=spec)
+        policy = _lerobot_policy(path, robot, spec, inference) or OnnxPolicy(path, robot, spec=spec)
         driven, _ = drive_robot(robot, policy.spec)
         drive = (
             policy.spec.action.mode,
@@ -107,7 +108,7 @@ def load_policies(files: dict[str, str], robot, spec=None) -> dict:
     return policies
 
 
-def _lerobot_policy(path: str, robot, spec):
+def _lerobot_policy(path: str, robot, spec, inference: str = "sync"):
     """A LeRobot export (its ``lerobot_contract`` metadata) as the runtime's chunked policy
     (:class:`~sim2real.deploy.policy.lerobot_policy.LeRobotChunkPolicy`), or None for any other
     file (the :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` reads it).
@@ -133,7 +134,7 @@ def _lerobot_policy(path: str, robot, spec):
         )
     from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
 
-    return LeRobotChunkPolicy(path, robot)
+    return LeRobotChunkPolicy(path, robot, inference=inference)
 
 
 def operator_mapping(args):

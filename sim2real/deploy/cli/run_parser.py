@@ -65,6 +65,16 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "sim2real.deploy.policy.excitation.Excitation); with --record-commands: docs/sysid.md",
     )
     p.add_argument("--spec", default=None, help="PolicySpec JSON for an ONNX without our metadata")
+    p.add_argument(
+        "--inference",
+        choices=("async", "sync"),
+        default="async",
+        help="a chunked (LeRobot) policy's network call: async (default) runs it on a worker "
+        "thread beside the servo loop, which keeps its period; it costs one policy period of "
+        "latency (40 ms at 25 fps): the chunk asked at a policy tick is taken at the next, its "
+        "first action dropped as late, the previous chunk's last action held meanwhile; sync "
+        "runs it inside the servo tick (no added latency; that tick overruns by the call's time)",
+    )
     p.add_argument("--duration", type=float, default=60.0, help="seconds of (simulated) time")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--envs", type=int, default=1, help="robots simulated in lockstep")

@@ -61,6 +61,13 @@ def _print_chunks(c: dict | None) -> None:
         f"calls; RUNNING: policy ticks per chunk {c['policy_ticks_per_chunk']}, servo ticks per "
         f"policy tick {c['servo_ticks_per_policy_tick']}"
     )
+    if "inference" in c:
+        print(
+            f"  chunks: {c['inference']} inference; network calls on the servo thread "
+            f"{c['network_calls_on_servo_thread']}; chunks not done when taken "
+            f"{c['chunk_waits']} (longest wait {c['chunk_wait_max_ms']:.1f} ms), late "
+            f"{c['late_chunks']}"
+        )
     names = {
         "position": f"joints ({c['joints']})",
         "target": "target, no smoother",

@@ -59,6 +59,37 @@ class ActionChunks:
         """Whether the next :meth:`step` calls the network."""
         return self.coeff is not None or not self._queue
 
+    def take(self, chunk: np.ndarray, skip: int) -> None:
+        """Queue a chunk computed beside the loop (async inference, queue scheme only): its
+        first ``skip`` actions dropped (their time has passed, as LeRobot's async client drops
+        an action whose timestep is not after the last one executed, ``robot_client.py`` line
+        241), then up to ``n_action_steps`` of the rest.
+
+        Raises:
+            ValueError: a chunk of another shape, or a stage with temporal ensembling.
+        """
+        if self.coeff is not None:
+            raise ValueError("a chunk taken beside the loop needs the action queue, not ensembling")
+        chunk = self._checked(chunk)
+        self.calls += 1
+        self._queue = list(chunk[skip : skip + self.n_action_steps])
+
+    def pop(self) -> np.ndarray | None:
+        """The next queued action (None: the queue is empty); async inference's step."""
+        return self._queue.pop(0) if self._queue else None
+
+    def queued(self) -> int:
+        """Actions left in the queue."""
+        return len(self._queue)
+
+    def _checked(self, chunk) -> np.ndarray:
+        chunk = np.asarray(chunk, dtype=np.float32)
+        if chunk.ndim == 3 and chunk.shape[0] == 1:
+            chunk = chunk[0]
+        if chunk.ndim != 2 or chunk.shape[0] != self.chunk_size:
+            raise ValueError(f"a chunk must be ({self.chunk_size}, action_dim), got {chunk.shape}")
+        return chunk
+
     def step(self, predict: Callable[[], np.ndarray]) -> np.ndarray:
         """The action of this tick; ``predict()`` is called when a chunk is needed and returns
         ``(chunk_size, action_dim)`` (a leading batch axis of 1 is accepted)."""

@@ -16,11 +16,19 @@ first RUNNING tick is a policy tick with a new chunk, so the policy sees the rob
 queue filled during the ramp. The state (each env's queue or ensemble, the time to its next policy
 tick, the held action) is the stage's (:meth:`state_dict` / :meth:`load_state_dict`).
 
+Inference (``inference``): ``"sync"`` calls the graph inside the servo tick that needs a chunk;
+``"async"`` on a worker thread (:class:`~sim2real.deploy.policy.chunk_worker.ChunkWorker`), one
+policy period of latency on every backend: the chunk asked at a policy tick is taken (awaited) at
+the next, its first action dropped (its time has passed), ``min(n_action_steps, chunk_size - 1)``
+actions played, the next asked at the tick of the last, held meanwhile
+(:meth:`LeRobotChunkPolicy._policy_tick_async`; a late chunk: :attr:`LeRobotChunkPolicy.late`).
+
 Observation, action and units: :class:`LeRobotChunkPolicy`.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -28,6 +36,7 @@ import numpy as np
 
 from sim2real.deploy.core.stateful import put, take
 from sim2real.deploy.policy.action_chunks import ActionChunks
+from sim2real.deploy.policy.chunk_worker import ChunkRequest, ChunkWorker
 from sim2real.deploy.spec.camera import RgbImageBlock
 from sim2real.deploy.spec.foreign import lerobot as lr
 
@@ -39,6 +48,8 @@ LEROBOT_UNITS: dict[str, tuple[str, ...]] = {
 #: The prefix of a LeRobot camera key; the rest is the camera's name (lerobot's
 #: ``OBS_IMAGES`` in ``lerobot/utils/constants.py``).
 IMAGE_PREFIX = "observation.images."
+#: The inference modes (module docstring): the network call inside the servo tick, or beside it.
+INFERENCE = ("sync", "async")
 
 
 def camera_blocks(contract: lr.LeRobotContract, where: str) -> tuple[RgbImageBlock, ...]:
@@ -100,6 +111,8 @@ class LeRobotChunkPolicy:
         path: The ONNX file ``policy-export FOLDER`` wrote (its ``lerobot_contract`` metadata).
         robot: Our robot description; its name must be in :data:`LEROBOT_UNITS` and its joints
             as many as the contract's state and action entries.
+        inference: ``"sync"`` (the default of this class: the network call in the servo tick)
+            or ``"async"`` (on a worker thread, one policy period of latency; module docstring).
 
     Attributes:
         contract: The file's :class:`~sim2real.deploy.spec.foreign.lerobot.LeRobotContract`.
@@ -110,15 +123,27 @@ class LeRobotChunkPolicy:
         chunks: One :class:`~sim2real.deploy.policy.action_chunks.ActionChunks` per env.
         new_chunk: (envs,) bool, the last call took a new chunk (a network call) in that env.
         policy_tick: (envs,) bool, the last call was a policy tick in that env.
-        policy_ticks, calls: (envs,) int64, policy ticks and network calls so far.
+        policy_ticks, calls: (envs,) int64, policy ticks and network calls so far (async:
+            chunks taken).
+        servo_thread_calls: (envs,) int64, network calls run on the calling (servo) thread.
+        waits: (envs,) int64, async: chunks not done at the tick that takes them (the servo
+            thread waited); wait_max: s, the longest such wait.
+        late: (envs,) bool, async: a chunk still not done ``late_limit`` s into its wait (the
+            env holds its target and asks nothing until its reset); late_chunks: (envs,) int64.
+        late_limit: s, half the robot's ``stale_limit`` (robot.toml): a wait longer than that
+            would let the bus's readings go stale. wall_clock: bound the wait by it (set by the
+            chunk hook from the run's clock; False in lockstep, where the wait is unbounded, so
+            a lockstep run is repeatable).
 
     Raises:
         lr.LeRobotFormatError: the file has no contract or no fps, the robot does not fit (no
             LeRobot units, another joint count), an environment state that is not the goal's 3
-            entries, a camera key or shape refused (one line naming the file).
+            entries, a camera key or shape refused, temporal ensembling or a chunk of one
+            action with async inference (one line naming the file).
+        ValueError: an ``inference`` not in :data:`INFERENCE`.
     """
 
-    def __init__(self, path: str | Path, robot):
+    def __init__(self, path: str | Path, robot, inference: str = "sync"):
         import onnxruntime as ort
 
         from sim2real.deploy.spec.policy_spec import PolicySpec
@@ -138,6 +163,23 @@ class LeRobotChunkPolicy:
             )
         if c.fps is None:
             raise lr.LeRobotFormatError(f"{path}: the contract has no fps")
+        if inference not in INFERENCE:
+            raise ValueError(f"inference {inference!r}; expected one of {', '.join(INFERENCE)}")
+        if inference == "async" and c.temporal_ensemble_coeff is not None:
+            raise lr.LeRobotFormatError(
+                f"{path}: temporal_ensemble_coeff {c.temporal_ensemble_coeff:g} with async "
+                "inference (every policy tick's chunk would be a period late); expected sync "
+                "inference (--inference sync) or an export without temporal ensembling"
+            )
+        if inference == "async" and c.chunk_size < 2:
+            raise lr.LeRobotFormatError(
+                f"{path}: chunk_size {c.chunk_size} with async inference (its one action is late "
+                "when taken); expected chunk_size >= 2 or sync inference (--inference sync)"
+            )
+        self.inference = inference
+        self.late_limit = 0.5 * float(robot.stale_limit)
+        self.wall_clock = False
+        self._worker = ChunkWorker(self._run) if inference == "async" else None
         if c.env_state_dim not in (0, 3):
             raise lr.LeRobotFormatError(
                 f"{path}: {lr.ENV_STATE_KEY} of {c.env_state_dim} entries; the runtime feeds "
@@ -184,6 +226,13 @@ class LeRobotChunkPolicy:
         self.policy_tick = np.zeros(envs, dtype=bool)
         self.policy_ticks = np.zeros(envs, dtype=np.int64)
         self.calls = np.zeros(envs, dtype=np.int64)
+        self.servo_thread_calls = np.zeros(envs, dtype=np.int64)
+        self.waits = np.zeros(envs, dtype=np.int64)
+        self.wait_max = 0.0
+        self.late = np.zeros(envs, dtype=bool)
+        self.late_chunks = np.zeros(envs, dtype=np.int64)
+        self._drain(range(len(getattr(self, "_pending", ()))))
+        self._pending: list[ChunkRequest | None] = [None] * envs
 
     def bind_batch(self, envs: int) -> None:
         """Arrays for ``envs`` robots (the runtime's camera stage calls it before its first
@@ -201,6 +250,32 @@ class LeRobotChunkPolicy:
         for e in np.flatnonzero(mask):
             self.chunks[e].reset()
         self._wait[mask] = 0.0
+        # on the wall clock (the end of RAMP_IN, a resume) a pending request is forgotten, not
+        # waited for: the servo tick does not stall; the next request queues behind it. Before
+        # the run's clock (the runtime's warm-up call) and in lockstep it is waited for.
+        self._drain(np.flatnonzero(mask), wait=not self.wall_clock)
+        self.late[mask] = False
+
+    def _drain(self, envs, wait: bool = True) -> None:
+        """Forget the pending requests of ``envs`` (``wait``: each waited for first, at most one
+        network call's time, so the worker's next request starts at once)."""
+        for e in envs:
+            request, self._pending[e] = self._pending[e], None
+            if request is not None and wait:
+                request.wait(None)
+
+    @property
+    def pending(self) -> np.ndarray:
+        """(envs,) bool: async, a chunk asked and not taken yet in that env."""
+        return np.array([r is not None for r in self._pending], dtype=bool)
+
+    def close(self) -> None:
+        """End the worker thread (async inference; the run's end, every exit path): the call
+        running finishes, the pending requests are forgotten. A later call starts a new one."""
+        for e in range(len(self._pending)):
+            self._pending[e] = None
+        if self._worker is not None:
+            self._worker.close()
 
     # ------------------------------------------------------------------ units
     def to_lerobot(self, q: np.ndarray) -> np.ndarray:
@@ -244,25 +319,71 @@ class LeRobotChunkPolicy:
         self._wait -= self.dt
         return self._out
 
+    def _feed(self, e: int, values: dict, copy: bool) -> dict:
+        """The graph's inputs for env ``e`` (``copy``: images copied, for a call beside the loop
+        while the camera stage writes the next frames)."""
+        feed = {lr.STATE_KEY: self.to_lerobot(values["joint_position"])[None]}
+        if self.contract.env_state_dim:
+            feed[lr.ENV_STATE_KEY] = values["goal_position"].astype(np.float32)[None]
+        for key, image in self.images.items():
+            # (1, 3, H, W): the block's one frame is the batch axis
+            feed[key] = image[e].copy() if copy else image[e]
+        return feed
+
+    def _run(self, feed: dict) -> np.ndarray:
+        return self.session.run(None, feed)[0]
+
+    def _hold(self, e: int, target: np.ndarray) -> None:
+        """Env ``e``'s held action: the joint target ``target`` (rad) in the spec's units."""
+        action = (target - self._offset) / self._scale
+        self._out[e] = np.clip(action, -self._clip, self._clip)
+
     def _policy_tick(self, e: int, obs_row: np.ndarray) -> None:
+        if self._worker is not None:
+            self._policy_tick_async(e, obs_row)
+            return
         chunks, calls = self.chunks[e], self.chunks[e].calls
         values = self._read(obs_row)
 
         def predict() -> np.ndarray:
-            feed = {lr.STATE_KEY: self.to_lerobot(values["joint_position"])[None]}
-            if self.contract.env_state_dim:
-                feed[lr.ENV_STATE_KEY] = values["goal_position"].astype(np.float32)[None]
-            for key, image in self.images.items():
-                feed[key] = image[e]  # (1, 3, H, W): the block's one frame is the batch axis
-            return self.session.run(None, feed)[0]
+            self.servo_thread_calls[e] += 1
+            return self._run(self._feed(e, values, copy=False))
 
-        target = self.to_joints(chunks.step(predict))
-        action = (target - self._offset) / self._scale
-        self._out[e] = np.clip(action, -self._clip, self._clip)
+        self._hold(e, self.to_joints(chunks.step(predict)))
         self.policy_ticks[e] += 1
         if chunks.calls != calls:
             self.new_chunk[e] = True
             self.calls[e] += 1
+
+    def _policy_tick_async(self, e: int, obs_row: np.ndarray) -> None:
+        """Async inference's policy tick (module docstring): take the chunk asked one policy
+        tick ago, play the next queued action (none queued: hold the measured joints, a
+        stretch's first tick), and ask for the next chunk when the queue is empty."""
+        chunks, values = self.chunks[e], self._read(obs_row)
+        self.policy_ticks[e] += 1
+        request, self._pending[e] = self._pending[e], None
+        if request is not None:
+            if not request.done.is_set():
+                self.waits[e] += 1
+                t0 = time.perf_counter()
+                done = request.wait(self.late_limit if self.wall_clock else None)
+                self.wait_max = max(self.wait_max, time.perf_counter() - t0)
+                if not done:  # the computer cannot keep this policy's rate: hold, stop
+                    self.late[e] = True
+                    self.late_chunks[e] += 1
+            if not self.late[e]:
+                chunks.take(request.chunk(), skip=1)  # its first action's time has passed
+                self.new_chunk[e] = True
+                self.calls[e] += 1
+        if self.late[e]:
+            return  # the held action stays until the env's reset
+        action = chunks.pop()
+        if action is not None:
+            self._hold(e, self.to_joints(action))
+        elif request is None:  # a stretch's first tick: hold where the joints are
+            self._hold(e, values["joint_position"])
+        if chunks.queued() == 0:
+            self._pending[e] = self._worker.submit(self._feed(e, values, copy=True))
 
     # ------------------------------------------------------------------ state
     def _packed(self) -> dict:
@@ -294,17 +415,31 @@ class LeRobotChunkPolicy:
         return out
 
     def _fields(self) -> dict:
-        return {
+        fields = {
             "out": self._out,
             "wait": self._wait,
             "policy_ticks": self.policy_ticks,
             "calls": self.calls,
         }
+        if self._worker is not None:  # async: the pending requests' chunks, waited for
+            c, envs = self.contract, self.envs
+            pending = np.zeros(envs, bool)
+            chunk = np.zeros((envs, c.chunk_size, c.action_dim), np.float32)
+            for e, request in enumerate(self._pending):
+                if request is not None:
+                    request.wait(None)
+                    pending[e] = True
+                    chunk[e] = np.asarray(request.chunk(), np.float32).reshape(chunk[e].shape)
+            fields |= {"pending": pending, "pending_chunk": chunk, "late": self.late}
+        return fields
 
     def state_dict(self, env: int | None = None) -> dict:
         """Each env's queue or ensemble (:meth:`_packed`), the time to its next policy tick
         (``wait``, s), the held action (``out``) and the counters (copies with a leading env
-        axis; ``env``: that env's only)."""
+        axis; ``env``: that env's only). Async inference adds each env's pending request as its
+        chunk (``pending`` (envs,) bool, ``pending_chunk`` (envs, chunk_size, n)): a checkpoint
+        taken while a request is pending waits for its result (at most one network call), so
+        the run loaded from it takes the same chunk at the same tick; and ``late``."""
         return take(self._fields() | self._packed(), env)
 
     def load_state_dict(self, state: dict, env: int | None = None) -> None:
@@ -318,6 +453,11 @@ class LeRobotChunkPolicy:
         fields = self._fields() | packed
         put(fields, state, env)  # checks every field before writing
         envs = range(self.envs) if env is None else [env]
+        if self._worker is not None:
+            for e in envs:
+                self._pending[e] = None  # waited for in _fields
+                if fields["pending"][e]:
+                    self._pending[e] = ChunkRequest.finished(fields["pending_chunk"][e])
         for e in envs:
             k, q = int(packed["ens_len"][e]), int(packed["queue_len"][e])
             self.chunks[e].load_state_dict(

@@ -6,7 +6,13 @@ target (what a loop without the smoother writes to the servos: LeRobot's own, ``
 every policy tick) and the command the smoother wrote.
 
 Only RUNNING ticks count; the first chunk of each RUNNING stretch (taken at the end of RAMP_IN,
-from rest) is no boundary. The record stops after :data:`MAX_TICKS` ticks (said in the report).
+from rest; with async inference one policy tick later, the arm held at rest meanwhile) is no
+boundary. The record stops after :data:`MAX_TICKS` ticks (said in the report).
+
+With async inference the hook also owns the run's side of the policy's worker thread: at the
+start it tells the policy whether the run is on the wall clock (its wait for a chunk bounded
+there), after each tick it stops safely (cause ``overrun``: the computer, not the robot) the
+envs whose chunk came late, and its close and discard (every exit path of a run) end the thread.
 """
 
 from __future__ import annotations
@@ -49,8 +55,21 @@ class ChunkHook(RunHook):
         self._servo_gaps: list[int] = []
         self._last_policy = None
         self._stretch_starts: list[int] = []  # recorded ticks where a RUNNING stretch began
+        self._chunked = False  # this RUNNING stretch has taken its first chunk
+
+    def start(self, rig) -> None:
+        if hasattr(self.policy, "wall_clock"):
+            self.policy.wall_clock = bool(rig.runtime.clock.realtime)
+
+    def close(self) -> None:
+        close = getattr(self.policy, "close", None)
+        if close is not None:
+            close()
 
     def after_tick(self, runtime) -> None:
+        late = getattr(self.policy, "late", None)
+        if late is not None and late.any() and len(late) == runtime.envs:
+            runtime.supervision.safe_stop(late.copy(), "overrun")
         if runtime.policy is not self.policy:  # another policy took over (a hand-over)
             self._running = False
             return None
@@ -64,10 +83,13 @@ class ChunkHook(RunHook):
         self.target.append(runtime.target[0].copy())
         self.command.append(runtime.command[0].copy())
         tick, new = bool(self.policy.policy_tick[0]), bool(self.policy.new_chunk[0])
-        if not self._running:  # the first RUNNING tick: the first chunk, from rest
+        if not self._running:  # the first RUNNING tick: the first chunk (async: asked), from rest
             self.starts += 1
             self._stretch_starts.append(k)
-            self._since, self._last_policy = 0, None
+            self._since, self._last_policy, self._chunked = 0, None, new
+        elif new and not self._chunked:  # async: the stretch's first chunk, taken from rest
+            self._since, self._chunked = 0, True
+            self._stretch_starts.append(k)  # its jump from the held joints is no chunk's
         elif new:
             self.boundaries.append(k)
             self._stretch.append(self._since)
@@ -100,6 +122,11 @@ class ChunkHook(RunHook):
             "policy_ticks_per_chunk": sorted(set(self._stretch)),
             "servo_ticks_per_policy_tick": sorted(set(self._servo_gaps)),
             "joints": "true" if self.truth else "estimated",
+            "inference": getattr(p, "inference", "sync"),
+            "network_calls_on_servo_thread": int(getattr(p, "servo_thread_calls", p.calls)[0]),
+            "chunk_waits": int(getattr(p, "waits", [0])[0]),
+            "chunk_wait_max_ms": 1e3 * float(getattr(p, "wait_max", 0.0)),
+            "late_chunks": int(getattr(p, "late_chunks", [0])[0]),
         }
         boundaries, ticks = (
             self._whole(self.boundaries, p.period / dt),

@@ -18,11 +18,11 @@ from sim2real.deploy.safety.pair_grid import table_bound
 #: m, distances within this of each other are equal (coal's round-off between configurations
 #: that leave a pair's relative pose unchanged).
 DISTANCE_TOLERANCE = 1e-9
-#: Share of the margin a position servo's path back into its workspace box may dip below where
-#: it was (our choice: the so101's ramp to home from its slumped poses dipped up to 0.6 mm, under
-#: its 3.6 mm margin, by Ruckig's time-synchronised profiles; the margin is the envelope's own
-#: allowance for the servo's deviation from its command path).
-ESCAPE_DIP = 1.0
+#: m, how much deeper than where it began a position servo's path back into its workspace box
+#: may go (our choice: so101 slumped under gravity in the Feetech emulator for 3 to 15 s, its
+#: end effector 1.5 to 16 cm below its box's floor, dipped up to 8.3 mm on the smoother's way
+#: home, whose joints move unsynchronised; its box leaves 5 cm below the base).
+ESCAPE_DEPTH = 0.02
 #: Segments of the brake the path certification cuts by time (our choice: a few Pinocchio
 #: calls, only where the whole box is uncertain).
 PATH_SEGMENTS = 4
@@ -247,21 +247,20 @@ class EnvelopeQueries:
         m, negative outside) may not shrink at the step's ``end`` or the brake's ``rest``. A
         position servo's (no drive model, no torque: ``start`` is its command path, free of the
         estimate's noise) may instead stay above env ``e``'s floor (:attr:`escape_floor`),
-        ``ESCAPE_DIP`` margins below the start and only rising while it escapes (a start below it
+        :data:`ESCAPE_DEPTH` below the start and only rising while it escapes (a start below it
         begins a new escape: something else, a push, moved the arm). A path back into the box
-        from a pose outside it is seldom monotone: from rest, Ruckig's time-synchronised profiles
-        move a joint with little way to go faster at first than one with far to go, and a
-        straight line in joint space may dip before it rises (so101 slumped below its box's
-        floor, ramping in to home: up to 0.6 mm); refusing every dip held the ramp at its start
-        forever. The floor never falls along accepted steps, so repeated dips cannot creep
-        outward. False when ``start`` is clear of the margin (the motion, not the pose, is what
-        fails)."""
+        from a pose outside it is seldom monotone: the smoother's joints move unsynchronised (a
+        joint with little way to go arrives first), and even a straight line in joint space may
+        dip before it rises (so101 slumped below its box's floor, ramping in to home: up to
+        8.3 mm); refusing every dip held the ramp at its start forever. The floor never falls
+        along accepted steps, so repeated dips cannot creep outward. False when ``start`` is clear
+        of the margin (the motion, not the pose, is what fails)."""
         m0 = self.workspace_margin(start).min()
         if m0 > self.margin:
             return False
         if self.drive is None and self.torque is None:
             floor = self.escape_floor
-            lowest = m0 - ESCAPE_DIP * self.margin
+            lowest = m0 - ESCAPE_DEPTH
             floor[e] = lowest if not m0 >= floor[e] else max(floor[e], lowest)
             m0 = floor[e]
         m0 += self._escape - DISTANCE_TOLERANCE

@@ -140,6 +140,11 @@ def test_report_html_shows_the_camera_verdict_report_json_carries(frozen_session
     assert f"<td>frozen frames {stops}</td>" in row  # stopped safely after: all its stops
     assert f"<td>{stops}: frozen {stops}</td>" in row
     assert f"<td>{latched['count']}, {latched['ran_again']} (1 s)</td>" in row
+    two = copy.deepcopy(report)  # several cameras: a section each, one verdict
+    lone = {k: x for k, x in s["camera"].items() if k not in ("verdict", "stale_stops")}
+    wrist = {**lone, "camera": "wrist", "kind": "rgb"}
+    two["sessions"][0]["camera"] = {"cameras": {"goal": lone, "wrist": wrist}, "verdict": v}
+    assert f"<td>{lone['camera']} (depth) 30 Hz; wrist (rgb) 30 Hz</td>" in report_html(two)
     bare = copy.deepcopy(report)
     del bare["sessions"][0]["camera"]
     assert "Camera faults" not in report_html(bare)

@@ -1,10 +1,11 @@
 """A camera policy's soak verdict in report.html: the ``camera verdict`` table
 (:func:`camera_table`), one row per session with a camera, from report.json's
 ``sessions[].camera.verdict`` (:meth:`sim2real.eval.soak.camera_verdict.CameraVerdict.section`):
-the camera faults the session survived (met, no stop), those after which it stopped safely (its
-stale-camera stops by fault), its latches after a camera fault and how many ran again after the
-operator's reset, and its failures by the camera fault before them. The console's lines say the
-same (:func:`sim2real.eval.report.summary.verdict_lines`)."""
+its cameras (several: each one, the verdict being the session's), the frames the per-frame
+faults hit, the camera faults it survived (met, no stop), those after which it stopped safely
+(its stale-camera stops by fault), its latches after a camera fault and how many ran again
+after the operator's reset, and its failures by the camera fault before them. The console's
+lines say the same (:func:`sim2real.eval.report.summary.verdict_lines`)."""
 
 from __future__ import annotations
 
@@ -40,7 +41,10 @@ def _row(s: dict) -> list:
     ]
     return [
         s["id"],
-        f"{c['camera']} ({c.get('kind', 'depth')}) {c['rate_hz']:g} Hz",
+        "; ".join(  # several cameras: each one's section under ``cameras``
+            f"{cam['camera']} ({cam.get('kind', 'depth')}) {cam['rate_hz']:g} Hz"
+            for cam in (c.get("cameras") or {None: c}).values()
+        ),
         f"{fr['frozen']} / {fr['dropped']} / {fr['late']}; {fr['frozen_spells']}",
         ", ".join(NAMES.get(k, k) for k in v["survived"]) or "none",
         ", ".join(f"{NAMES[k]} {n}" for k, n in v["stopped_safely"].items()) or "none",

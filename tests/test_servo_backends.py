@@ -250,6 +250,8 @@ def test_deploy_run_feetech_adversarial_policy_runs_clean(tmp_path):
     assert report["final_state"] == ["RUNNING"]
 
 
+@pytest.mark.nightly  # 13-16 s (the slump, then deploy-run): the plant-level test of this is
+# tests/test_envelope.py's, 2 s, in make test
 def test_deploy_run_feetech_ramps_in_an_arm_slumped_below_its_workspace_box(tmp_path):
     """Torque off, the SO-101 slumps in the emulator (as it does while deploy-run starts on a
     busy machine) until its end effector is 5 cm below its workspace box's floor: deploy-run

@@ -120,6 +120,37 @@ def test_the_console_names_what_the_camera_survived_what_stopped_it_and_after_wh
 
 
 @needs_gl
+def test_report_html_shows_the_camera_verdict_report_json_carries(frozen_session):
+    """report.json's session carries the verdict as the session wrote it; report.html's
+    ``camera verdict`` table shows it (what stopped the robot safely, its stale-camera stops,
+    its latches and runs again); a report without a camera has no such section."""
+    from sim2real.eval.report.build import build_report
+    from sim2real.eval.report.html import report_html
+
+    result, _ = frozen_session
+    report = build_report({"robot": "arm3"}, [result])
+    (s,) = report["sessions"]
+    v = s["camera"]["verdict"]
+    assert v == result["camera"]["verdict"]
+    page = report_html(report)
+    assert "<h2>Camera faults: survived, stopped safely after, failures after them</h2>" in page
+    stops, latched = v["stops"]["count"], v["latched_after_camera"]
+    row = page[page.index("<h2>Camera faults") : page.index("<h2>Randomization")]
+    assert f"<td>{s['id']}</td>" in row
+    assert f"<td>frozen frames {stops}</td>" in row  # stopped safely after: all its stops
+    assert f"<td>{stops}: frozen {stops}</td>" in row
+    assert f"<td>{latched['count']}, {latched['ran_again']} (1 s)</td>" in row
+    two = copy.deepcopy(report)  # several cameras: a section each, one verdict
+    lone = {k: x for k, x in s["camera"].items() if k not in ("verdict", "stale_stops")}
+    wrist = {**lone, "camera": "wrist", "kind": "rgb"}
+    two["sessions"][0]["camera"] = {"cameras": {"goal": lone, "wrist": wrist}, "verdict": v}
+    assert f"<td>{lone['camera']} (depth) 30 Hz; wrist (rgb) 30 Hz</td>" in report_html(two)
+    bare = copy.deepcopy(report)
+    del bare["sessions"][0]["camera"]
+    assert "Camera faults" not in report_html(bare)
+
+
+@needs_gl
 def test_a_resumed_session_keeps_its_camera_verdict(frozen_session, frozen_out):
     result, _ = frozen_session
     again, _ = _frozen_batch(frozen_out, resume=True)  # from its checkpoint at 12 s

@@ -16,6 +16,7 @@ from sim2real.deploy.policy.onnx_policy import OnnxPolicy
 from sim2real.deploy.runtime import Runtime
 from sim2real.deploy.safety.envelope import MotionEnvelope
 from sim2real.deploy.safety.envelope_kernel import brake_reach
+from sim2real.deploy.safety.envelope_query import ESCAPE_DEPTH
 from sim2real.deploy.safety.guard import SafetyGuard
 from sim2real.deploy.smoothing import CommandSmoother
 from sim2real.deploy.spec.policy_spec import PolicySpec
@@ -278,3 +279,59 @@ def test_certify_is_check_then_commit(request, name, mode):
             fast.commit(args[-1])
             slow.commit(command_)
     assert fast.queries == slow.queries > 0
+
+
+#: so101 as it slumps in the Feetech emulator in 10 s with its torque off (a servo bus's arm
+#: before deploy-run's bring-up): the end effector 11.6 cm below its workspace box's floor; the
+#: smoother's path home first dips 8.3 mm deeper.
+SLUMPED = [0.0, 1.391, 0.469, 0.095, 0.0, -0.002]
+
+
+def test_an_arm_started_below_its_workspace_box_ramps_in_to_home_and_runs(tmp_path, so101):
+    """RAMP_IN from a pose outside the box to the home pose inside it: the envelope lets the arm
+    move back in (before, it braked the ramp's first step, a little deeper than its start, on
+    every tick: RAMP_IN forever, a workspace intervention per tick)."""
+    from tests.runtime_fixtures import adversarial_onnx
+
+    backend = SimBackend(so101, "position", envs=1, seed=0)
+    backend.reset(np.array(SLUMPED))
+    backend.noise_sigma[:] = 0.0  # the estimate at rest is at rest (REST_SPEED ends RAMP_IN)
+    rt = Runtime(so101, OnnxPolicy(adversarial_onnx(tmp_path, so101, "position"), so101), backend)
+    envelope = rt.guard.envelope
+    assert envelope.workspace_margin(np.array(SLUMPED)).min() < -0.1
+    rt.start()
+    for _ in range(300):
+        rt.tick()
+        if rt.mode_names() != ["RAMP_IN"]:
+            break
+    assert rt.mode_names() == ["RUNNING"]
+    assert np.abs(backend.true_position()[0] - so101.home).max() < 0.05
+    # braked only where the fast ramp passed the box's face, as any motion there is
+    assert rt.guard.counts["workspace"][0] < 20
+    assert np.isfinite(envelope.escape_floor[0])
+
+
+def test_an_arm_outside_its_box_is_still_braked_moving_out(so101):
+    """Outside the box, a step deeper that its brake does not bring back is unsafe, and small
+    steps deeper one after another cannot creep out: the floor they are held to never falls."""
+    env = SafetyGuard(so101, 1, "position").envelope
+    zero, moving, full = np.zeros((1, 6)), np.zeros(1, dtype=bool), np.ones((1, 6))
+    start = np.array([[0.0, 1.2, 0.0, 0.0, 0.0, 0.0]])  # 9.4 cm below the floor, lower further on
+    fast = zero.copy()
+    fast[0, 1] = 4.0  # rad/s, swinging the shoulder further down: its brake ends cm deeper
+    assert env.check(start, np.stack([start, zero, zero]), np.stack([start, fast, zero]),
+                     moving, full)  # fmt: skip
+    assert env.unsafe[1, 0]
+    m0 = env.workspace_margin(start[0]).min()
+    deepest, q = m0, start.copy()
+    for _ in range(60):  # 0.005 rad a step at rest: each about 1 mm deeper
+        nxt = q.copy()
+        nxt[0, 1] += 0.005
+        if env.check(q, np.stack([q, zero, zero]), np.stack([nxt, zero, zero]), moving, full):
+            break
+        q = nxt
+        deepest = env.workspace_margin(q[0]).min()
+    else:
+        pytest.fail("the arm crept 60 steps deeper outside its box")
+    assert env.unsafe[1, 0]
+    assert m0 - ESCAPE_DEPTH - 1e-9 <= deepest < m0 - 0.5 * ESCAPE_DEPTH  # a dip, then braked

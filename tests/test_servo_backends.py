@@ -250,6 +250,27 @@ def test_deploy_run_feetech_adversarial_policy_runs_clean(tmp_path):
     assert report["final_state"] == ["RUNNING"]
 
 
+@pytest.mark.nightly  # 13-16 s (the slump, then deploy-run): the plant-level test of this is
+# tests/test_envelope.py's, 2 s, in make test
+def test_deploy_run_feetech_ramps_in_an_arm_slumped_below_its_workspace_box(tmp_path):
+    """Torque off, the SO-101 slumps in the emulator (as it does while deploy-run starts on a
+    busy machine) until its end effector is 5 cm below its workspace box's floor: deploy-run
+    ramps it home and runs (before, the motion envelope braked every step of the ramp that went
+    a little deeper on its way back: RAMP_IN to the end, a workspace intervention every tick)."""
+    from sim2real.deploy.safety.guard import SafetyGuard
+
+    so101 = load_robot("so101")
+    envelope = SafetyGuard(so101, 1, "position").envelope
+    with ServoBusEmulator(so101, "feetech") as emu:
+        deadline = time.monotonic() + 30.0
+        while envelope.workspace_margin(emu.plant.true_position()[0]).min() > -0.05:
+            assert time.monotonic() < deadline, "the arm did not slump within 30 s"
+            time.sleep(0.05)
+        code, report, out = _deploy_run(tmp_path, "feetech", emu, 3.0)
+    assert code == EXIT_CLEAN, out
+    assert report["final_state"] == ["RUNNING"], out
+
+
 class _Recorder:
     """A backend wrapper keeping every command and the emulated plant's joint angles then."""
 

@@ -260,7 +260,9 @@ def test_a_checkpoint_of_another_version_or_without_a_field_is_refused(killed, c
     manifest = session_dir(out, 0) / ckpt.MANIFEST
     doc = json.loads(manifest.read_text())
     where = re.escape(str(manifest))
-    for old in (2, 3, 4):  # 3: before the safe-stop timeout state; 4: before per-pair clearances
+    # 3: before the safe-stop timeout state; 4: before per-pair clearances; 18: before the
+    # camera verdict and the guard's escape floor
+    for old in (2, 3, 4, 18):
         manifest.write_text(json.dumps({**doc, "version": old}))
         expected = rf"{where}: field 'version': expected {ckpt.VERSION}, got {old}"
         with pytest.raises(ckpt.CheckpointError, match=expected):

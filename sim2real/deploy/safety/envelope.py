@@ -88,7 +88,8 @@ class MotionEnvelope(EnvelopeQueries):
     By induction the brake is always safe to take: the previous tick certified the motion that holds
     it. A robot already within the margin (pushed there, or started there) may only move so that no
     pair's distance and no workspace margin shrinks, checked at the step's end and at its brake's
-    rest point; otherwise it brakes.
+    rest point; otherwise it brakes (a position servo's workspace margin may dip, never below a
+    rising floor, :attr:`escape_floor`: an arm started outside its box ramps back in).
 
     Args:
         robot: The robot (limits, workspace box, collision pairs).
@@ -141,6 +142,9 @@ class MotionEnvelope(EnvelopeQueries):
         #: m, what a robot within the margin must gain back per step (:data:`TORQUE_ESCAPE` in
         #: torque mode, else 0)
         self._escape = TORQUE_ESCAPE if torque is not None else 0.0
+        #: (envs,) m, position mode: the margin an env escaping into its box may not go below
+        #: (``EnvelopeQueries._escapes_box``); NaN: none yet
+        self.escape_floor = np.full(envs, np.nan)
         n = robot.n_joints
         s = robot.config.safety
         self.model = robot.fixed_base_model

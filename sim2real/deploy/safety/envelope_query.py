@@ -18,6 +18,11 @@ from sim2real.deploy.safety.pair_grid import table_bound
 #: m, distances within this of each other are equal (coal's round-off between configurations
 #: that leave a pair's relative pose unchanged).
 DISTANCE_TOLERANCE = 1e-9
+#: m, how much deeper than where it began a position servo's path back into its workspace box
+#: may go (our choice: so101 slumped under gravity in the Feetech emulator for 3 to 15 s, its
+#: end effector 1.5 to 16 cm below its box's floor, dipped up to 8.3 mm on the smoother's way
+#: home, whose joints move unsynchronised; its box leaves 5 cm below the base).
+ESCAPE_DEPTH = 0.02
 #: Segments of the brake the path certification cuts by time (our choice: a few Pinocchio
 #: calls, only where the whole box is uncertain).
 PATH_SEGMENTS = 4
@@ -135,7 +140,7 @@ class EnvelopeQueries:
             return True
         if kind == ek.COLLISION:
             return self._escapes_contact(start, end, rest)
-        return self._escapes_box(start, end, rest)
+        return self._escapes_box(e, start, end, rest)
 
     def _reach(self, kind: int, centre, half, speeds=None) -> np.ndarray:
         """How far each quantity of ``kind`` can shrink in the box ``centre +- half`` (n,) rad:
@@ -237,10 +242,26 @@ class EnvelopeQueries:
         floor = np.where(d0 > self.margin, self.margin, d0 + self._escape) - DISTANCE_TOLERANCE
         return bool(np.all(self.distances(end) >= floor) and np.all(self.distances(rest) >= floor))
 
-    def _escapes_box(self, start, end, rest) -> bool:
-        """:meth:`_escapes_contact` for the workspace box: the margin inside it may not shrink."""
+    def _escapes_box(self, e: int, start, end, rest) -> bool:
+        """:meth:`_escapes_contact` for the workspace box: the margin inside it (its smallest axis,
+        m, negative outside) may not shrink at the step's ``end`` or the brake's ``rest``. A
+        position servo's (no drive model, no torque: ``start`` is its command path, free of the
+        estimate's noise) may instead stay above env ``e``'s floor (:attr:`escape_floor`),
+        :data:`ESCAPE_DEPTH` below the start and only rising while it escapes (a start below it
+        begins a new escape: something else, a push, moved the arm). A path back into the box
+        from a pose outside it is seldom monotone: the smoother's joints move unsynchronised (a
+        joint with little way to go arrives first), and even a straight line in joint space may
+        dip before it rises (so101 slumped below its box's floor, ramping in to home: up to
+        8.3 mm); refusing every dip held the ramp at its start forever. The floor never falls
+        along accepted steps, so repeated dips cannot creep outward. False when ``start`` is clear
+        of the margin (the motion, not the pose, is what fails)."""
         m0 = self.workspace_margin(start).min()
         if m0 > self.margin:
             return False
+        if self.drive is None and self.torque is None:
+            floor = self.escape_floor
+            lowest = m0 - ESCAPE_DEPTH
+            floor[e] = lowest if not m0 >= floor[e] else max(floor[e], lowest)
+            m0 = floor[e]
         m0 += self._escape - DISTANCE_TOLERANCE
         return self.workspace_margin(end).min() >= m0 and self.workspace_margin(rest).min() >= m0

@@ -259,6 +259,8 @@ class SafetyGuard(MotionCheck):
         self.beyond_ticks[which] = 0
         self.far_ticks[which] = 0
         drive = self.envelope.drive if self.envelope is not None else None
+        if self.envelope is not None:  # an escape from outside the box starts afresh
+            self.envelope.escape_floor[which] = np.nan
         if drives and drive is not None:
             drive.reset(q, envs)
 
@@ -275,6 +277,8 @@ class SafetyGuard(MotionCheck):
             collision_q=self._col_q,
             pair_clearance=self._pair_clearance,
         )
+        if self.envelope is not None and self.envelope.has_workspace:
+            fields["escape_floor"] = self.envelope.escape_floor
         if self.envelope is not None and self.envelope.drive is not None:
             fields["drive_setpoint"] = self.envelope.drive.setpoint
         if self.envelope is not None and self.envelope.torque is not None:
@@ -291,7 +295,9 @@ class SafetyGuard(MotionCheck):
         ``effort_scale`` (envs, n), ``last_valid`` (envs, n) the hold target (rad in position mode),
         and the screens' caches (``workspace_q``, ``collision_q`` (envs, n) rad;
         ``workspace_margin`` (envs,) m; ``pair_clearance`` (envs, pairs) m, each collision pair's
-        distance), in velocity mode ``drive_setpoint`` (envs, n) rad, the drives' integrators
+        distance), with a motion envelope and a workspace box ``escape_floor`` (envs,) m
+        (:attr:`sim2real.deploy.safety.envelope.MotionEnvelope.escape_floor`, NaN: none), in
+        velocity mode ``drive_setpoint`` (envs, n) rad, the drives' integrators
         (:class:`sim2real.deploy.safety.drive.VelocityDrive`), in torque mode ``torque_command`` (envs, n) N
         m and ``torque_acceleration`` (envs, n) rad/s^2, the last committed torque and its
         acceleration, ``torque_hold`` (envs, n) rad and ``torque_braked`` (envs,) bool, where the

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import jinja2
 
+from sim2real.eval.report.camera_table import camera_table
 from sim2real.eval.report.domain_account import domain_table
 from sim2real.eval.report.plots import (
     plot_interventions,
@@ -156,8 +157,9 @@ def _success_cells(s: dict) -> list:
 
 def _tables(report: dict) -> dict[str, dict]:
     """The tables of report.html (campaign, checks, baseline, sessions, interventions, faults,
-    locomotion, wheels, robustness, randomization) as ``{"header", "rows"}``; a table whose
-    content the report lacks (no baseline, no wheels, no sweep) is left out."""
+    locomotion, wheels, robustness, randomization, camera verdict) as ``{"header", "rows"}``; a
+    table whose content the report lacks (no baseline, no wheels, no sweep, no camera) is left
+    out."""
     built = {name: make(report) for name, make in _TABLES.items()}
     return {name: table for name, table in built.items() if table is not None}
 
@@ -403,6 +405,7 @@ _TABLES = {
     "wheels": _wheels_table,
     "robustness": _robustness_table,
     "randomization": lambda report: randomization_table(report["sessions"]),
+    "camera": lambda report: camera_table(report, _table),
 }
 
 

@@ -87,7 +87,11 @@ FORMAT = "soak-checkpoint"
 #: with the estimate's summed velocity ``travel/dead_reckoned``), its hand-over and after-clip
 #: ticks (``figures/handed_over``, ``after_counts``, ``vseen``) and each play's rest
 #: interventions and violations (``figures/play`` (envs, 12)); a version 17 checkpoint has none.
-VERSION = 18
+#: 19: a camera policy's verdict (``camera_verdict/verdict``: the camera faults each session
+#: survived, stopped safely after or failed after) and the guard's floor of an arm escaping back
+#: into its workspace box (``guard/escape_floor``); a version 18 checkpoint has neither (18 was
+#: not bumped when the verdict was added: its camera sessions restart).
+VERSION = 19
 MANIFEST = "checkpoint.json"
 
 

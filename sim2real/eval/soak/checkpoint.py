@@ -90,7 +90,8 @@ FORMAT = "soak-checkpoint"
 #: 19: a camera policy's verdict (``camera_verdict/verdict``: the camera faults each session
 #: survived, stopped safely after or failed after) and the guard's floor of an arm escaping back
 #: into its workspace box (``guard/escape_floor``); a version 18 checkpoint has neither (18 was
-#: not bumped when the verdict was added: its camera sessions restart).
+#: not bumped when the verdict was added: its camera sessions restart); a policy with several
+#: cameras keeps each camera's stage and source under its name (``camera/<name>/...``).
 VERSION = 19
 MANIFEST = "checkpoint.json"
 

@@ -194,6 +194,17 @@ def graph_module(policy, contract: lr.LeRobotContract, sampler: Sampler):
         keys.append(lr.ENV_STATE_KEY)
     start = contract.n_obs_steps - 1
     end = start + contract.n_action_steps
+    crop_shape = contract.diffusion.get("crop_shape")
+
+    def crop(img):
+        """torchvision's ``center_crop`` of lerobot's encoder in eval mode, as slices (its
+        offsets ``int(round((size - crop) / 2.0))``; the reader refused a crop past the image):
+        traced with constant offsets, where torchvision's own rounds a traced size."""
+        if not crop_shape:
+            return img
+        (rows, cols), (h, w) = crop_shape, img.shape[-2:]
+        top, left = int(round((int(h) - rows) / 2.0)), int(round((int(w) - cols) / 2.0))
+        return img[..., top : top + rows, left : left + cols]
 
     class Graph(nn.Module):
         def __init__(self):
@@ -210,7 +221,7 @@ def graph_module(policy, contract: lr.LeRobotContract, sampler: Sampler):
             if contract.env_state_dim:
                 batch[OBS_ENV_STATE] = self.n.norm(lr.ENV_STATE_KEY, rest.pop(0))
             if contract.cameras:
-                images = [self.n.norm(k, rest.pop(0)) for k in contract.camera_keys]
+                images = [crop(self.n.norm(k, rest.pop(0))) for k in contract.camera_keys]
                 batch[OBS_IMAGES] = torch.stack(images, dim=-4)  # (1, n_obs, cams, 3, H, W)
             x = rest.pop(0)
             z = rest.pop(0) if sampler.kind == "DDPM" else None
@@ -223,6 +234,14 @@ def graph_module(policy, contract: lr.LeRobotContract, sampler: Sampler):
             return self.n.unnorm(lr.ACTION_KEY, x[:, start:end])
 
     return Graph().eval()
+
+
+def _rgb_encoders(policy) -> list:
+    """lerobot's image encoders of the policy (one, or one per camera)."""
+    enc = getattr(policy.diffusion, "rgb_encoder", None)
+    if enc is None:
+        return []
+    return list(enc) if isinstance(enc, (list, tuple)) or hasattr(enc, "__len__") else [enc]
 
 
 def inputs(contract: lr.LeRobotContract) -> list[tuple[str, tuple[int, ...]]]:
@@ -359,7 +378,15 @@ def export_lerobot_diffusion(
             "noise_inputs": noise_inputs,
         },
     )
-    model = _to_onnx(graph_module(policy, contract, sampler), contract)
+    encoders = _rgb_encoders(policy)
+    crops = [e.do_crop for e in encoders]
+    try:  # the graph crops (graph_module's crop); lerobot's own encoder again for the parity
+        for e in encoders:
+            e.do_crop = False
+        model = _to_onnx(graph_module(policy, contract, sampler), contract)
+    finally:
+        for e, c in zip(encoders, crops, strict=True):
+            e.do_crop = c
     from sim2real.deploy.export.graph import set_metadata, tool_versions
 
     meta = {lr.METADATA_KEY: contract.to_json(), "source_format": "lerobot_diffusion"}

@@ -179,8 +179,17 @@ def test_a_diffusion_folder_is_read_without_lerobot(tmp_path):
         ({"num_inference_steps": 200}, "num_inference_steps 200 exceeds num_train_timesteps"),
         ({"compile_model": True}, "compile_model true is not read (expected false)"),
     ],
-    ids=["scheduler", "prediction", "pretrained", "resize", "n_action_steps", "horizon", "crop",
-         "steps", "compile"],  # fmt: skip
+    ids=[
+        "scheduler",
+        "prediction",
+        "pretrained",
+        "resize",
+        "n_action_steps",
+        "horizon",
+        "crop",
+        "steps",
+        "compile",
+    ],  # fmt: skip
 )
 def test_what_the_export_does_not_build_is_refused_in_one_line(tmp_path, capsys, edit, said):
     folder = write_act_folder(tmp_path / "pm", config_edits=_dp_config(**edit))

@@ -358,7 +358,9 @@ def export_lerobot_diffusion(
     except lr.LeRobotFormatError as e:
         raise ExportError(str(e)) from None
     if contract.policy_type != "diffusion":
-        raise ExportError(f"{folder / 'config.json'}: type {contract.policy_type!r}; expected diffusion")
+        raise ExportError(
+            f"{folder / 'config.json'}: type {contract.policy_type!r}; expected diffusion"
+        )
     if contract.fps is None:
         raise ExportError(
             f"{folder}: the policy's rate is unknown (train_config.json has no env.fps); give "

@@ -37,7 +37,6 @@ from pathlib import Path
 import numpy as np
 
 from sim2real.deploy.spec.foreign.contract import positive_number
-from sim2real.deploy.spec.foreign.lerobot_diffusion import read_diffusion
 from sim2real.deploy.spec.foreign.lerobot_contract import (
     METADATA_KEY,
     NAME,
@@ -46,6 +45,7 @@ from sim2real.deploy.spec.foreign.lerobot_contract import (
     Normalization,
     describe,
 )
+from sim2real.deploy.spec.foreign.lerobot_diffusion import read_diffusion
 
 __all__ = [
     "METADATA_KEY",

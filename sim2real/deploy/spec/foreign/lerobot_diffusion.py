@@ -118,7 +118,9 @@ def read_diffusion(cfg: dict, path: Path, cameras, env_state_dim: int) -> dict:
             and all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in crop)
         )
         if not ok:
-            raise LeRobotFormatError(f"{path}: crop_shape must be null or [rows, columns], got {crop!r}")
+            raise LeRobotFormatError(
+                f"{path}: crop_shape must be null or [rows, columns], got {crop!r}"
+            )
         for key, shape in cameras:
             if crop[0] > shape[1] or crop[1] > shape[2]:
                 raise LeRobotFormatError(

@@ -19,13 +19,22 @@ from tests.lerobot_folder import write_act_folder, write_diffusion_onnx
 
 
 def lerobot_dp_folder(
-    folder, *, scheduler="DDPM", cameras=True, env_state=True, steps=10, crop=(28, 36), seed=0
+    folder,
+    *,
+    scheduler="DDPM",
+    cameras=True,
+    env_state=True,
+    steps=10,
+    crop=(28, 36),
+    seed=0,
+    wrist=False,
 ):
     """A small Diffusion Policy saved by lerobot's DiffusionPolicy and processors (random
     weights; a ResNet-18 from scratch with GroupNorm, as DiffusionConfig's defaults; a 2-level
     U-Net of 16 and 32 channels): ``n_obs_steps`` 2, ``horizon`` 8, ``n_action_steps`` 4,
     ``steps`` training timesteps all used at inference; ``cameras`` a front camera of 3 x 32 x 40
-    centre-cropped to ``crop``."""
+    centre-cropped to ``crop`` (``wrist``: and a wrist camera, each with its own encoder:
+    ``use_separate_rgb_encoder_per_camera``)."""
     pytest.importorskip(
         "lerobot", reason="the extra 'lerobot' (lerobot's own classes) is not installed"
     )
@@ -39,6 +48,8 @@ def lerobot_dp_folder(
 
     torch.manual_seed(seed)
     cams = {"observation.images.front": (3, 32, 40)} if cameras else {}
+    if wrist:
+        cams["observation.images.wrist"] = (3, 32, 40)
     inputs = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(6,))}
     if env_state:
         inputs["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(3,))
@@ -57,6 +68,7 @@ def lerobot_dp_folder(
         diffusion_step_embed_dim=16,
         noise_scheduler_type=scheduler,
         num_train_timesteps=steps,
+        use_separate_rgb_encoder_per_camera=wrist,
         device="cpu",
     )
     policy = DiffusionPolicy(cfg)
@@ -72,11 +84,16 @@ def lerobot_dp_folder(
     return folder
 
 
-@pytest.mark.parametrize("scheduler", ["DDPM", "DDIM"])
-def test_a_diffusion_folder_exports_with_parity_against_select_action(tmp_path, capsys, scheduler):
+@pytest.mark.parametrize(
+    ("scheduler", "wrist"), [("DDPM", False), ("DDIM", True)], ids=["DDPM", "DDIM-two-cameras"]
+)
+def test_a_diffusion_folder_exports_with_parity_against_select_action(
+    tmp_path, capsys, scheduler, wrist
+):
     """Same noise in, same actions out: 24 ticks, a call every 4 (n_action_steps), the history of
-    2 observations, the camera's centre crop and ResNet, the unrolled sampler."""
-    folder = lerobot_dp_folder(tmp_path / "pm", scheduler=scheduler)
+    2 observations, the cameras' centre crop and ResNet (one shared, or one per camera), the
+    unrolled sampler."""
+    folder = lerobot_dp_folder(tmp_path / "pm", scheduler=scheduler, wrist=wrist)
     out = tmp_path / "dp.onnx"
     assert main([str(folder), "--robot", "so101", "--fps", "25", "--out", str(out)]) == EXIT_OK
     text = capsys.readouterr().out
@@ -95,10 +112,11 @@ def test_a_diffusion_folder_exports_with_parity_against_select_action(tmp_path, 
 
     sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     got = {i.name: i.shape for i in sess.get_inputs()}
+    cams = ["front", "wrist"] if wrist else ["front"]
     assert got == {
         "observation.state": [1, 2, 6],
         "observation.environment_state": [1, 2, 3],
-        "observation.images.front": [1, 2, 3, 32, 40],
+        **{f"observation.images.{c}": [1, 2, 3, 32, 40] for c in cams},
         **noise,
     }
     assert sess.get_outputs()[0].shape == [1, 4, 6]

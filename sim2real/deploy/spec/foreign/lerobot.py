@@ -7,7 +7,9 @@ The folder (lerobot 0.4.4, ``lerobot/utils/train_utils.py`` ``save_checkpoint``)
 
 - ``config.json``: the policy's config (``type``, ``input_features``, ``output_features``,
   ``normalization_mapping``, ``n_obs_steps``, ``chunk_size``, ``n_action_steps``,
-  ``temporal_ensemble_coeff``), written by ``PreTrainedConfig._save_pretrained``;
+  ``temporal_ensemble_coeff``; Diffusion Policy's ``horizon`` and sampler:
+  :mod:`sim2real.deploy.spec.foreign.lerobot_diffusion`), written by
+  ``PreTrainedConfig._save_pretrained``;
 - ``model.safetensors``: the weights (read only by the export, through lerobot);
 - ``policy_preprocessor.json`` / ``policy_postprocessor.json``: the processor pipelines, each step
   a ``registry_name`` with its ``config`` and, for the normalizer steps, a ``state_file`` of

@@ -23,13 +23,8 @@ normal; a step whose timestep is 0 adds none and ignores its slice). DDIM runs w
 ``eta`` 0 (``DDIMScheduler.step``'s default): no noise after the first. Output ``action_chunk``
 ``[1, n_action_steps, action_dim]``.
 
-Parity: the sampling is stochastic, so it is checked with the same noise on both sides. At each
-network call the initial noise is drawn and given to lerobot's ``select_action(batch,
-noise=...)``; DDPM's per-step noise is what torch's global generator, seeded per call, draws
-inside ``DDPMScheduler.step`` (``randn_tensor``, generator None): the same seed draws it first
-for the graph's ``variance_noise``, then again for lerobot's call. :data:`PARITY_TICKS` ticks of
-random observations, the ONNX file with our history and action queue beside lerobot's
-preprocessor, ``select_action`` and postprocessor.
+Parity: the sampling is stochastic, so it is checked with the same noise on both sides
+(:func:`select_action_parity`).
 """
 
 from __future__ import annotations
@@ -286,7 +281,13 @@ def _to_onnx(module, contract: lr.LeRobotContract):
 def select_action_parity(path, policy, pre, post, contract, ticks: int, seed: int):
     """Max abs and relative error of the ONNX file with :class:`ObservationHistory` and
     :class:`ActionChunks` against lerobot's preprocessor, ``select_action`` and postprocessor
-    over ``ticks`` ticks, the same noise on both sides (module docstring); and the calls."""
+    over ``ticks`` ticks of random observations; and the calls.
+
+    The same noise on both sides: at each network call the initial noise is drawn and given to
+    lerobot's ``select_action(batch, noise=...)``; DDPM's per-step noise is what torch's global
+    generator, seeded per call, draws inside ``DDPMScheduler.step`` (``randn_tensor``, generator
+    None): the same seed draws it first for the graph's ``variance_noise``, then again for
+    lerobot's call."""
     import onnxruntime as ort
     import torch
 

@@ -207,6 +207,7 @@ def write_diffusion_onnx(
     steps: int = 5,
     fps: float = 25.0,
     noise_deg: float = 0.1,
+    image_shape=None,
 ) -> Path:
     """A stand-in for an exported Diffusion Policy (DDPM) with the export's inputs, output and
     contract (built with onnx.helper, no lerobot): ``observation.state`` and
@@ -214,7 +215,9 @@ def write_diffusion_onnx(
     ``variance_noise`` ``[steps, 1, horizon, 6]``; each action of the chunk is the newest state
     of the history plus ``noise_deg`` x the initial noise at its index of the executed slice
     (``n_obs_steps - 1`` on), plus 0 x the goal and the variance noise: an arm held where it is,
-    with a jitter drawn at every call (LeRobot's units: degrees, gripper percent)."""
+    with a jitter drawn at every call (LeRobot's units: degrees, gripper percent).
+    ``image_shape`` (3, H, W): an ``observation.images.front`` ``[1, n_obs_steps, 3, H, W]``
+    input too (plus 0 x its mean)."""
     import onnx
     from onnx import TensorProto, helper
 
@@ -229,7 +232,14 @@ def write_diffusion_onnx(
         helper.make_node("Add", ["s1", "za"], ["a"]),
         helper.make_node("ReduceMean", ["observation.environment_state"], ["g"], keepdims=0),
         helper.make_node("ReduceMean", ["variance_noise"], ["v"], keepdims=0),
-        helper.make_node("Add", ["g", "v"], ["gv"]),
+        helper.make_node("Add", ["g", "v"], ["gv_"]),
+        helper.make_node(
+            "ReduceMean",
+            ["observation.images.front"] if image_shape else ["v"],
+            ["im"],
+            keepdims=0,
+        ),
+        helper.make_node("Add", ["gv_", "im"], ["gv"]),
         helper.make_node("Mul", ["gv", "zero"], ["gv0"]),
         helper.make_node("Add", ["a", "gv0"], ["action_chunk"]),
     ]
@@ -250,6 +260,12 @@ def write_diffusion_onnx(
             helper.make_tensor_value_info("observation.environment_state", f, [1, n_obs_steps, 3]),
             helper.make_tensor_value_info("noise", f, [1, horizon, 6]),
             helper.make_tensor_value_info("variance_noise", f, [steps, 1, horizon, 6]),
+        ]
+        + [
+            helper.make_tensor_value_info(
+                "observation.images.front", f, [1, n_obs_steps, *image_shape]
+            )
+            for _ in [image_shape] * bool(image_shape)
         ],
         [helper.make_tensor_value_info("action_chunk", f, [1, n_action_steps, 6])],
         inits,
@@ -260,10 +276,11 @@ def write_diffusion_onnx(
         policy_type="diffusion",
         state_dim=6,
         env_state_dim=3,
-        cameras=(),
+        cameras=(("observation.images.front", tuple(image_shape)),) if image_shape else (),
         action_dim=6,
         normalization={k: identity for k in ("observation.state", "action")}
-        | {"observation.environment_state": identity},
+        | {"observation.environment_state": identity}
+        | ({"observation.images.front": identity} if image_shape else {}),
         n_obs_steps=n_obs_steps,
         chunk_size=n_action_steps,
         n_action_steps=n_action_steps,

@@ -287,3 +287,35 @@ def test_an_act_export_is_not_taken_for_a_diffusion_one(tmp_path):
     path = write_chunk_onnx(tmp_path / "act.onnx", image_shape=None)
     with pytest.raises(lr.LeRobotFormatError, match="is not a Diffusion Policy export"):
         DiffusionChunkPolicy(path, load_robot("so101"))
+
+
+def test_the_camera_history_holds_the_frames_of_the_last_policy_ticks(tmp_path):
+    """The frames the camera stage wrote at the last n_obs_steps policy ticks, oldest first,
+    are what the graph's image input gets (lerobot's image queue); frames written between
+    policy ticks are not taken."""
+    from sim2real.deploy.policy.lerobot_diffusion_policy import DiffusionChunkPolicy
+    from sim2real.robots import load_robot
+
+    path = write_diffusion_onnx(tmp_path / "cam.onnx", fps=25.0, image_shape=(3, 8, 10))
+    p = DiffusionChunkPolicy(path, load_robot("so101"))
+    key = "observation.images.front"
+    obs = np.zeros((1, p.spec.obs_dim), np.float32)
+    p.reset()
+    for tick in range(9):  # policy ticks at servo ticks 0, 4, 8 (25 Hz beside 100 Hz)
+        p.images[key][:] = float(tick)  # the camera stage's write before the tick
+        p(obs)
+    frames = p.history.stacked(0)[key]
+    assert frames.shape == (2, 3, 8, 10)
+    assert frames[0].max() == frames[0].min() == 4.0 and frames[1].min() == 8.0
+
+
+def test_a_diffusion_export_with_a_camera_renders_it_on_the_plant(tmp_path):
+    """deploy-run --backend sim renders the scene's front camera into the DP's image history."""
+    from sim2real.deploy.cli.run_verdict import EXIT_CLEAN
+
+    path = write_diffusion_onnx(tmp_path / "cam.onnx", fps=25.0, image_shape=(3, 48, 64))
+    code, r = _run(tmp_path, path, "--backend", "sim", "--duration", "2")
+    assert code == EXIT_CLEAN
+    cam = r["camera"].get("front", r["camera"])
+    assert cam["frames_taken"][0] >= 45  # 2 s at 25 Hz
+    assert r["chunks"]["policy_ticks_per_chunk"] == [4]

@@ -223,7 +223,9 @@ def write_diffusion_onnx(
 
     from sim2real.deploy.spec.foreign import lerobot as lr
 
-    start, end = n_obs_steps - 1, n_obs_steps - 1 + n_action_steps
+    # the export's chunk: n_action_steps and the next one when the horizon has it
+    chunk = min(n_action_steps + 1, horizon - n_obs_steps + 1)
+    start, end = n_obs_steps - 1, n_obs_steps - 1 + chunk
     nodes = [
         helper.make_node("Gather", ["observation.state", "last"], ["s"], axis=1),  # (1, 6)
         helper.make_node("Unsqueeze", ["s", "axis1"], ["s1"]),  # (1, 1, 6)
@@ -267,7 +269,7 @@ def write_diffusion_onnx(
             )
             for _ in [image_shape] * bool(image_shape)
         ],
-        [helper.make_tensor_value_info("action_chunk", f, [1, n_action_steps, 6])],
+        [helper.make_tensor_value_info("action_chunk", f, [1, chunk, 6])],
         inits,
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
@@ -282,7 +284,7 @@ def write_diffusion_onnx(
         | {"observation.environment_state": identity}
         | ({"observation.images.front": identity} if image_shape else {}),
         n_obs_steps=n_obs_steps,
-        chunk_size=n_action_steps,
+        chunk_size=chunk,
         n_action_steps=n_action_steps,
         temporal_ensemble_coeff=None,
         fps=fps,

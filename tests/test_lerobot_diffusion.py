@@ -101,7 +101,7 @@ def test_a_diffusion_folder_exports_with_parity_against_select_action(
     assert f"{scheduler} sampler, 10 denoising steps of 10" in text
     c = lr.read_onnx(out)
     assert (c.policy_type, c.n_obs_steps, c.horizon, c.chunk_size, c.n_action_steps) == (
-        "diffusion", 2, 8, 4, 4,
+        "diffusion", 2, 8, 5, 4,
     )  # fmt: skip
     assert c.diffusion["timesteps"] == list(range(9, -1, -1))
     noise = {"noise": [1, 8, 6]}
@@ -119,7 +119,7 @@ def test_a_diffusion_folder_exports_with_parity_against_select_action(
         **{f"observation.images.{c}": [1, 2, 3, 32, 40] for c in cams},
         **noise,
     }
-    assert sess.get_outputs()[0].shape == [1, 4, 6]
+    assert sess.get_outputs()[0].shape == [1, 5, 6]  # n_action_steps and the next one
 
 
 def test_the_noise_changes_the_actions_and_the_parity_would_see_it(tmp_path):
@@ -173,7 +173,7 @@ def test_a_diffusion_folder_is_read_without_lerobot(tmp_path):
     folder = write_act_folder(tmp_path / "pm", config_edits=_dp_config(), train_env_fps=30)
     c = lr.read(folder)
     assert (c.policy_type, c.n_obs_steps, c.horizon, c.chunk_size, c.n_action_steps) == (
-        "diffusion", 2, 16, 8, 8,
+        "diffusion", 2, 16, 9, 8,
     )  # fmt: skip
     assert c.diffusion["num_inference_steps"] == 100 and c.diffusion["crop_shape"] == [40, 56]
     text = "\n".join(lr.describe(c))
@@ -239,8 +239,12 @@ def test_a_diffusion_export_runs_in_deploy_run_on_the_so101(tmp_path, capsys):
     assert code == EXIT_CLEAN, err
     assert "LeRobot diffusion policy at 25 Hz beside the servo loop" in err
     c = r["chunks"]
+    # async inference (the default): a chunk asked one policy tick before it is taken plays
+    # n_action_steps from its second action
     assert c["policy_ticks_per_chunk"] == [4] and c["servo_ticks_per_policy_tick"] == [4]
     assert r["final_state"] == ["RUNNING"] and r["violations"]["any"] == 0
+    code, r = _run(tmp_path, path, "--backend", "sim", "--duration", "3", "--inference", "sync")
+    assert code == EXIT_CLEAN and r["chunks"]["policy_ticks_per_chunk"] == [4]
 
 
 def test_the_history_and_the_noise_are_the_stages_state(tmp_path):

@@ -135,7 +135,7 @@ def _lerobot_policy(path: str, robot, spec, inference: str = "sync"):
     if lerobot.read_onnx(path).policy_type == "diffusion":
         from sim2real.deploy.policy.lerobot_diffusion_policy import DiffusionChunkPolicy
 
-        return DiffusionChunkPolicy(path, robot)
+        return DiffusionChunkPolicy(path, robot, inference=inference)
     from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
 
     return LeRobotChunkPolicy(path, robot, inference=inference)

@@ -10,8 +10,8 @@ spatial softmax: lerobot's ``_prepare_global_conditioning``, traced), then the w
 loop unrolled: ``num_inference_steps`` calls of the U-Net, each followed by the scheduler's step
 (:class:`Sampler`: DDPM's or DDIM's arithmetic, as diffusers 0.35's ``DDPMScheduler.step`` and
 ``DDIMScheduler.step`` compute it with lerobot's arguments, written out with the scheduler's own
-``alphas_cumprod`` and ``timesteps`` as constants), the slice of ``n_action_steps`` actions from
-index ``n_obs_steps - 1`` of the ``horizon``, and the postprocessor's unnormalisation.
+``alphas_cumprod`` and ``timesteps`` as constants), the slice of the contract's ``chunk_size``
+actions from index ``n_obs_steps - 1`` of the ``horizon``, and the postprocessor's unnormalisation.
 
 Inputs (float32): ``observation.state`` ``[1, n_obs_steps, state_dim]`` (the robot's units),
 ``observation.environment_state`` ``[1, n_obs_steps, env_dim]`` when the policy has one, one
@@ -21,7 +21,7 @@ keeps), ``noise`` ``[1, horizon, action_dim]`` (the initial sample, standard nor
 DDPM, ``variance_noise`` ``[steps, 1, horizon, action_dim]`` (the noise each step adds, standard
 normal; a step whose timestep is 0 adds none and ignores its slice). DDIM runs with lerobot's
 ``eta`` 0 (``DDIMScheduler.step``'s default): no noise after the first. Output ``action_chunk``
-``[1, n_action_steps, action_dim]``.
+``[1, chunk_size, action_dim]``.
 
 Parity: the sampling is stochastic, so it is checked with the same noise on both sides
 (:func:`select_action_parity`).
@@ -188,7 +188,7 @@ def graph_module(policy, contract: lr.LeRobotContract, sampler: Sampler):
     if contract.env_state_dim:
         keys.append(lr.ENV_STATE_KEY)
     start = contract.n_obs_steps - 1
-    end = start + contract.n_action_steps
+    end = start + contract.chunk_size
     crop_shape = contract.diffusion.get("crop_shape")
 
     def crop(img):

@@ -52,6 +52,7 @@ class DiffusionChunkPolicy(LeRobotChunkPolicy):
         path: The ONNX file ``policy-export FOLDER`` wrote from a Diffusion Policy folder.
         robot: Our robot description (as :class:`LeRobotChunkPolicy`'s).
         seed: The noise generator's seed (module docstring).
+        inference: ``sync`` or ``async`` (:class:`LeRobotChunkPolicy`'s).
 
     Attributes:
         history: The :class:`ObservationHistory` of every env (graph inputs, LeRobot's units).
@@ -61,7 +62,7 @@ class DiffusionChunkPolicy(LeRobotChunkPolicy):
             its contract), or any refusal of :class:`LeRobotChunkPolicy`.
     """
 
-    def __init__(self, path: str | Path, robot, seed: int = 0):
+    def __init__(self, path: str | Path, robot, seed: int = 0, inference: str = "sync"):
         self.seed = int(seed)
         contract = lr.read_onnx(path)
         d = contract.diffusion
@@ -71,7 +72,7 @@ class DiffusionChunkPolicy(LeRobotChunkPolicy):
                 "(expected policy_type diffusion with diffusion.noise_inputs)"
             )
         self._noise_inputs = dict(d["noise_inputs"])
-        super().__init__(path, robot)
+        super().__init__(path, robot, inference=inference)
 
     def _bind(self, envs: int) -> None:
         super()._bind(envs)
@@ -84,12 +85,17 @@ class DiffusionChunkPolicy(LeRobotChunkPolicy):
         super().reset(envs)
         self.history.reset(envs)
 
-    def _observe(self, e: int, values: dict[str, np.ndarray]) -> None:
-        obs = {k: v[0] for k, v in super()._feed(e, values).items()}  # without the batch axis
-        self.history.push(obs, e)
+    def _policy_tick(self, e: int, obs_row: np.ndarray) -> None:
+        """Every policy tick (sync or async inference): the observation into env ``e``'s
+        history first, then :class:`LeRobotChunkPolicy`'s tick (its call reads :meth:`_feed`)."""
+        now = super()._feed(e, self._read(obs_row), copy=False)
+        self.history.push({k: v[0] for k, v in now.items()}, e)  # without the batch axis
+        super()._policy_tick(e, obs_row)
 
-    def _feed(self, e: int, values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        feed = {k: v[None] for k, v in self.history.stacked(e).items()}
+    def _feed(self, e: int, values: dict, copy: bool) -> dict[str, np.ndarray]:
+        """The graph's inputs for env ``e``: its history (copied with ``copy``: a call beside
+        the loop while the next policy tick appends) and the call's noise."""
+        feed = {k: (v.copy() if copy else v)[None] for k, v in self.history.stacked(e).items()}
         rng = np.random.default_rng([self.seed, e, int(self.calls[e])])
         feed.update(draw_noise(self._noise_inputs, rng))
         return feed

@@ -155,8 +155,10 @@ def read(folder: str | Path, fps: float | None = None) -> LeRobotContract:
     if ptype == "diffusion":
         dp = read_diffusion(cfg, cfg_path, cameras, env_dim)
         ints = {"n_obs_steps": dp["n_obs_steps"], "n_action_steps": dp["n_action_steps"]}
-        # the graph's chunk: the n_action_steps actions select_action executes
-        ints["chunk_size"] = dp["n_action_steps"]
+        # the graph's chunk: the n_action_steps actions select_action executes, and the next one
+        # when the horizon has it (async inference plays a chunk from its second action)
+        room = dp["horizon"] - dp["n_obs_steps"] + 1
+        ints["chunk_size"] = min(dp["n_action_steps"] + 1, room)
         coeff, horizon, diffusion = None, dp["horizon"], dp["diffusion"]
     else:
         ints, coeff = _act_ints(cfg, cfg_path)

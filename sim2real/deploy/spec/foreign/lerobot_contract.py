@@ -87,8 +87,9 @@ class LeRobotContract:
         source: The folder read.
         horizon: Diffusion Policy's ``horizon`` (actions the denoiser generates per call, from
             the oldest observation of the history); None for ACT. A Diffusion Policy export's
-            chunk is the ``n_action_steps`` actions from index ``n_obs_steps - 1`` of it
-            (``chunk_size`` = ``n_action_steps``).
+            chunk is the ``chunk_size`` actions from index ``n_obs_steps - 1`` of it:
+            ``n_action_steps`` (those ``select_action`` executes) and one more when the horizon
+            has it (async inference skips a chunk's first action).
         diffusion: Diffusion Policy's sampler (None for ACT): ``scheduler`` (``DDPM``/``DDIM``),
             ``num_train_timesteps``, ``num_inference_steps``, ``beta_schedule``,
             ``prediction_type``, ``clip_sample``, ``clip_sample_range``, ``crop_shape`` (rows,

@@ -196,3 +196,114 @@ def write_chunk_onnx(
     onnx.checker.check_model(model)
     onnx.save(model, str(path))
     return path
+
+
+def write_diffusion_onnx(
+    path: Path,
+    *,
+    n_obs_steps: int = 2,
+    horizon: int = 8,
+    n_action_steps: int = 4,
+    steps: int = 5,
+    fps: float = 25.0,
+    noise_deg: float = 0.1,
+    image_shape=None,
+) -> Path:
+    """A stand-in for an exported Diffusion Policy (DDPM) with the export's inputs, output and
+    contract (built with onnx.helper, no lerobot): ``observation.state`` and
+    ``observation.environment_state`` ``[1, n_obs_steps, n]``, ``noise`` ``[1, horizon, 6]``,
+    ``variance_noise`` ``[steps, 1, horizon, 6]``; each action of the chunk is the newest state
+    of the history plus ``noise_deg`` x the initial noise at its index of the executed slice
+    (``n_obs_steps - 1`` on), plus 0 x the goal and the variance noise: an arm held where it is,
+    with a jitter drawn at every call (LeRobot's units: degrees, gripper percent).
+    ``image_shape`` (3, H, W): an ``observation.images.front`` ``[1, n_obs_steps, 3, H, W]``
+    input too (plus 0 x its mean)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from sim2real.deploy.spec.foreign import lerobot as lr
+
+    # the export's chunk: n_action_steps and the next one when the horizon has it
+    chunk = min(n_action_steps + 1, horizon - n_obs_steps + 1)
+    start, end = n_obs_steps - 1, n_obs_steps - 1 + chunk
+    nodes = [
+        helper.make_node("Gather", ["observation.state", "last"], ["s"], axis=1),  # (1, 6)
+        helper.make_node("Unsqueeze", ["s", "axis1"], ["s1"]),  # (1, 1, 6)
+        helper.make_node("Slice", ["noise", "start", "end", "axis1"], ["z"]),
+        helper.make_node("Mul", ["z", "amp"], ["za"]),
+        helper.make_node("Add", ["s1", "za"], ["a"]),
+        helper.make_node("ReduceMean", ["observation.environment_state"], ["g"], keepdims=0),
+        helper.make_node("ReduceMean", ["variance_noise"], ["v"], keepdims=0),
+        helper.make_node("Add", ["g", "v"], ["gv_"]),
+        helper.make_node(
+            "ReduceMean",
+            ["observation.images.front"] if image_shape else ["v"],
+            ["im"],
+            keepdims=0,
+        ),
+        helper.make_node("Add", ["gv_", "im"], ["gv"]),
+        helper.make_node("Mul", ["gv", "zero"], ["gv0"]),
+        helper.make_node("Add", ["a", "gv0"], ["action_chunk"]),
+    ]
+    inits = [
+        helper.make_tensor("last", TensorProto.INT64, [], [n_obs_steps - 1]),
+        helper.make_tensor("axis1", TensorProto.INT64, [1], [1]),
+        helper.make_tensor("start", TensorProto.INT64, [1], [start]),
+        helper.make_tensor("end", TensorProto.INT64, [1], [end]),
+        helper.make_tensor("amp", TensorProto.FLOAT, [], [noise_deg]),
+        helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
+    ]
+    f = TensorProto.FLOAT
+    graph = helper.make_graph(
+        nodes,
+        "diffusion_stand_in",
+        [
+            helper.make_tensor_value_info("observation.state", f, [1, n_obs_steps, 6]),
+            helper.make_tensor_value_info("observation.environment_state", f, [1, n_obs_steps, 3]),
+            helper.make_tensor_value_info("noise", f, [1, horizon, 6]),
+            helper.make_tensor_value_info("variance_noise", f, [steps, 1, horizon, 6]),
+        ]
+        + [
+            helper.make_tensor_value_info(
+                "observation.images.front", f, [1, n_obs_steps, *image_shape]
+            )
+            for _ in [image_shape] * bool(image_shape)
+        ],
+        [helper.make_tensor_value_info("action_chunk", f, [1, chunk, 6])],
+        inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    identity = lr.Normalization("IDENTITY")
+    contract = lr.LeRobotContract(
+        policy_type="diffusion",
+        state_dim=6,
+        env_state_dim=3,
+        cameras=(("observation.images.front", tuple(image_shape)),) if image_shape else (),
+        action_dim=6,
+        normalization={k: identity for k in ("observation.state", "action")}
+        | {"observation.environment_state": identity}
+        | ({"observation.images.front": identity} if image_shape else {}),
+        n_obs_steps=n_obs_steps,
+        chunk_size=chunk,
+        n_action_steps=n_action_steps,
+        temporal_ensemble_coeff=None,
+        fps=fps,
+        horizon=horizon,
+        diffusion={
+            "scheduler": "DDPM",
+            "num_train_timesteps": steps,
+            "num_inference_steps": steps,
+            "beta_schedule": "squaredcos_cap_v2",
+            "prediction_type": "epsilon",
+            "clip_sample": True,
+            "clip_sample_range": 1.0,
+            "crop_shape": None,
+            "timesteps": list(range(steps - 1, -1, -1)),
+            "noise_inputs": {"noise": [1, horizon, 6], "variance_noise": [steps, 1, horizon, 6]},
+        },
+    )
+    prop = model.metadata_props.add()
+    prop.key, prop.value = lr.METADATA_KEY, contract.to_json()
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path

@@ -204,9 +204,9 @@ def _export_folder(source: Path, args) -> int:
 
 
 def _export_lerobot(source: Path, args) -> int:
-    """A LeRobot policy folder (``pretrained_model/``): its ACT graph with the contract, after
-    the parity check against lerobot's ``select_action``
-    (:mod:`sim2real.deploy.export.lerobot_act`)."""
+    """A LeRobot policy folder (``pretrained_model/``): its ACT or Diffusion Policy graph with the
+    contract, after the parity check against lerobot's ``select_action``
+    (:mod:`sim2real.deploy.export.lerobot_act`, :mod:`sim2real.deploy.export.lerobot_diffusion`)."""
 
     def export():
         from sim2real.deploy.export.lerobot_act import export_lerobot_act
@@ -222,7 +222,10 @@ def _export_lerobot(source: Path, args) -> int:
                     f"{source / 'config.json'}: observation.state has {c.state_dim} and action "
                     f"{c.action_dim} entries, robot {args.robot} has {len(joints)} joints"
                 )
-        return export_lerobot_act(source, args.out, fps=args.fps, robot=args.robot, seed=args.seed)
+        run = export_lerobot_act
+        if read(source, fps=args.fps).policy_type == "diffusion":
+            from sim2real.deploy.export.lerobot_diffusion import export_lerobot_diffusion as run
+        return run(source, args.out, fps=args.fps, robot=args.robot, seed=args.seed)
 
     result = _exported(export)
     if isinstance(result, int):

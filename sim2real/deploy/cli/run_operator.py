@@ -132,6 +132,10 @@ def _lerobot_policy(path: str, robot, spec, inference: str = "sync"):
             f"{path}: a LeRobot export carries its own contract ('{lerobot.METADATA_KEY}'); "
             "expected no --spec"
         )
+    if lerobot.read_onnx(path).policy_type == "diffusion":
+        from sim2real.deploy.policy.lerobot_diffusion_policy import DiffusionChunkPolicy
+
+        return DiffusionChunkPolicy(path, robot, inference=inference)
     from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
 
     return LeRobotChunkPolicy(path, robot, inference=inference)

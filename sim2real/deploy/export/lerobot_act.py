@@ -94,8 +94,10 @@ def load_policy(folder: Path):
     return policy, pre, post
 
 
-def graph_module(policy, contract: lr.LeRobotContract):
-    """The torch module the ONNX graph is traced from: ``(state, *images) -> action_chunk``."""
+def norm_module(contract: lr.LeRobotContract, keys):
+    """A torch module whose ``norm(key, x)`` / ``unnorm(key, y)`` are lerobot's normaliser and
+    unnormaliser of each of ``keys`` (the contract's statistics as buffers; module docstring of
+    :mod:`sim2real.deploy.spec.foreign.lerobot`)."""
     import torch
     from torch import nn
 
@@ -107,13 +109,10 @@ def graph_module(policy, contract: lr.LeRobotContract):
             return n.mode, torch.from_numpy(n.stats["min"]), torch.from_numpy(n.stats["max"])
         return n.mode, None, None
 
-    class Graph(nn.Module):
+    class Norm(nn.Module):
         def __init__(self):
             super().__init__()
-            self.model = policy.model
-            self.keys = [lr.STATE_KEY, *contract.camera_keys, lr.ACTION_KEY]
-            if contract.env_state_dim:
-                self.keys.append(lr.ENV_STATE_KEY)
+            self.keys = list(keys)
             self.modes = {}
             self.eps = {}
             for i, key in enumerate(self.keys):
@@ -152,20 +151,37 @@ def graph_module(policy, contract: lr.LeRobotContract):
                 return (y + 1) / 2 * d + lo
             return y
 
+    return Norm()
+
+
+def graph_module(policy, contract: lr.LeRobotContract):
+    """The torch module the ONNX graph is traced from: ``(state, *images) -> action_chunk``."""
+    from torch import nn
+
+    keys = [lr.STATE_KEY, *contract.camera_keys, lr.ACTION_KEY]
+    if contract.env_state_dim:
+        keys.append(lr.ENV_STATE_KEY)
+
+    class Graph(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.model = policy.model
+            self.n = norm_module(contract, keys)
+
         def forward(self, state, *rest):
             from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
-            batch = {OBS_STATE: self.norm(lr.STATE_KEY, state)}
+            batch = {OBS_STATE: self.n.norm(lr.STATE_KEY, state)}
             images = rest
             if contract.env_state_dim:
-                batch[OBS_ENV_STATE] = self.norm(lr.ENV_STATE_KEY, rest[0])
+                batch[OBS_ENV_STATE] = self.n.norm(lr.ENV_STATE_KEY, rest[0])
                 images = rest[1:]
             if images:
                 batch[OBS_IMAGES] = [
-                    self.norm(k, img) for k, img in zip(contract.camera_keys, images, strict=True)
+                    self.n.norm(k, img) for k, img in zip(contract.camera_keys, images, strict=True)
                 ]
             actions = self.model(batch)[0]
-            return self.unnorm(lr.ACTION_KEY, actions)
+            return self.n.unnorm(lr.ACTION_KEY, actions)
 
     return Graph().eval()
 

@@ -7,7 +7,9 @@ The folder (lerobot 0.4.4, ``lerobot/utils/train_utils.py`` ``save_checkpoint``)
 
 - ``config.json``: the policy's config (``type``, ``input_features``, ``output_features``,
   ``normalization_mapping``, ``n_obs_steps``, ``chunk_size``, ``n_action_steps``,
-  ``temporal_ensemble_coeff``), written by ``PreTrainedConfig._save_pretrained``;
+  ``temporal_ensemble_coeff``; Diffusion Policy's ``horizon`` and sampler:
+  :mod:`sim2real.deploy.spec.foreign.lerobot_diffusion`), written by
+  ``PreTrainedConfig._save_pretrained``;
 - ``model.safetensors``: the weights (read only by the export, through lerobot);
 - ``policy_preprocessor.json`` / ``policy_postprocessor.json``: the processor pipelines, each step
   a ``registry_name`` with its ``config`` and, for the normalizer steps, a ``state_file`` of
@@ -45,6 +47,7 @@ from sim2real.deploy.spec.foreign.lerobot_contract import (
     Normalization,
     describe,
 )
+from sim2real.deploy.spec.foreign.lerobot_diffusion import read_diffusion
 
 __all__ = [
     "METADATA_KEY",
@@ -65,7 +68,7 @@ def _positive(v) -> bool:
 
 
 #: The policy types whose folder this reader knows (``config.json`` ``type``).
-POLICY_TYPES = ("act",)
+POLICY_TYPES = ("act", "diffusion")
 #: The processor steps a folder may hold (their ``registry_name``); any other is refused, as its
 #: effect on the observation would be guessed.
 KNOWN_STEPS = (
@@ -149,6 +152,48 @@ def read(folder: str | Path, fps: float | None = None) -> LeRobotContract:
     norm_map = cfg.get("normalization_mapping")
     if not isinstance(norm_map, dict):
         raise LeRobotFormatError(f"{cfg_path}: normalization_mapping missing or not an object")
+    if ptype == "diffusion":
+        dp = read_diffusion(cfg, cfg_path, cameras, env_dim)
+        ints = {"n_obs_steps": dp["n_obs_steps"], "n_action_steps": dp["n_action_steps"]}
+        # the graph's chunk: the n_action_steps actions select_action executes, and the next one
+        # when the horizon has it (async inference plays a chunk from its second action)
+        room = dp["horizon"] - dp["n_obs_steps"] + 1
+        ints["chunk_size"] = min(dp["n_action_steps"] + 1, room)
+        coeff, horizon, diffusion = None, dp["horizon"], dp["diffusion"]
+    else:
+        ints, coeff = _act_ints(cfg, cfg_path)
+        horizon = diffusion = None
+
+    features = {k: v[0] for k, v in {**inputs, **outputs}.items()}
+    pre_norm, rename = _processor(folder / PREPROCESSOR, "normalizer_processor", features, norm_map)
+    post_norm, _ = _processor(folder / POSTPROCESSOR, "unnormalizer_processor", features, norm_map)
+    normalization = {k: v for k, v in pre_norm.items() if k != ACTION_KEY}
+    if ACTION_KEY not in post_norm:
+        raise LeRobotFormatError(
+            f"{folder / POSTPROCESSOR}: no unnormalizer_processor for 'action'"
+        )
+    normalization[ACTION_KEY] = post_norm[ACTION_KEY]
+    return LeRobotContract(
+        policy_type=ptype,
+        state_dim=state_dim,
+        env_state_dim=env_dim,
+        cameras=tuple(cameras),
+        action_dim=action_dim,
+        normalization=normalization,
+        n_obs_steps=ints["n_obs_steps"],
+        chunk_size=ints["chunk_size"],
+        n_action_steps=ints["n_action_steps"],
+        temporal_ensemble_coeff=coeff,
+        fps=_fps(folder, fps),
+        rename_map=rename,
+        source=str(folder),
+        horizon=horizon,
+        diffusion=diffusion,
+    )
+
+
+def _act_ints(cfg: dict, cfg_path: Path) -> tuple[dict[str, int], float | None]:
+    """ACT's ``n_obs_steps``, ``chunk_size``, ``n_action_steps`` and ``temporal_ensemble_coeff``."""
     ints = {}
     for name in ("n_obs_steps", "chunk_size", "n_action_steps"):
         v = cfg.get(name)
@@ -181,31 +226,7 @@ def read(folder: str | Path, fps: float | None = None) -> LeRobotContract:
                 f"{ints['n_action_steps']} (configuration_act.py)"
             )
         coeff = float(coeff)
-
-    features = {k: v[0] for k, v in {**inputs, **outputs}.items()}
-    pre_norm, rename = _processor(folder / PREPROCESSOR, "normalizer_processor", features, norm_map)
-    post_norm, _ = _processor(folder / POSTPROCESSOR, "unnormalizer_processor", features, norm_map)
-    normalization = {k: v for k, v in pre_norm.items() if k != ACTION_KEY}
-    if ACTION_KEY not in post_norm:
-        raise LeRobotFormatError(
-            f"{folder / POSTPROCESSOR}: no unnormalizer_processor for 'action'"
-        )
-    normalization[ACTION_KEY] = post_norm[ACTION_KEY]
-    return LeRobotContract(
-        policy_type=ptype,
-        state_dim=state_dim,
-        env_state_dim=env_dim,
-        cameras=tuple(cameras),
-        action_dim=action_dim,
-        normalization=normalization,
-        n_obs_steps=ints["n_obs_steps"],
-        chunk_size=ints["chunk_size"],
-        n_action_steps=ints["n_action_steps"],
-        temporal_ensemble_coeff=coeff,
-        fps=_fps(folder, fps),
-        rename_map=rename,
-        source=str(folder),
-    )
+    return ints, coeff
 
 
 def detect_onnx(metadata: dict[str, str]) -> bool:

@@ -85,6 +85,18 @@ class LeRobotContract:
         rename_map: The preprocessor's ``rename_observations_processor`` map (robot key ->
             policy key).
         source: The folder read.
+        horizon: Diffusion Policy's ``horizon`` (actions the denoiser generates per call, from
+            the oldest observation of the history); None for ACT. A Diffusion Policy export's
+            chunk is the ``chunk_size`` actions from index ``n_obs_steps - 1`` of it:
+            ``n_action_steps`` (those ``select_action`` executes) and one more when the horizon
+            has it (async inference skips a chunk's first action).
+        diffusion: Diffusion Policy's sampler (None for ACT): ``scheduler`` (``DDPM``/``DDIM``),
+            ``num_train_timesteps``, ``num_inference_steps``, ``beta_schedule``,
+            ``prediction_type``, ``clip_sample``, ``clip_sample_range``, ``crop_shape`` (rows,
+            columns or None), and, once exported, ``timesteps`` (the denoising steps' timesteps)
+            and ``noise_inputs`` ({graph input: shape}: ``noise`` the initial sample
+            (1, horizon, action_dim) and, for DDPM, ``variance_noise`` (steps, 1, horizon,
+            action_dim), standard normal; DDIM's eta is 0, no noise after the first).
     """
 
     policy_type: str
@@ -100,6 +112,8 @@ class LeRobotContract:
     fps: float | None
     rename_map: dict[str, str] = field(default_factory=dict)
     source: str = ""
+    horizon: int | None = None
+    diffusion: dict | None = None
 
     @property
     def camera_keys(self) -> tuple[str, ...]:
@@ -148,6 +162,8 @@ class LeRobotContract:
                 "temporal_ensemble_coeff": self.temporal_ensemble_coeff,
                 "fps": self.fps,
                 "rename_map": self.rename_map,
+                "horizon": self.horizon,
+                "diffusion": self.diffusion,
             }
         )
 
@@ -178,6 +194,8 @@ class LeRobotContract:
                 fps=d["fps"],
                 rename_map=dict(d["rename_map"]),
                 source=source,
+                horizon=None if d.get("horizon") is None else int(d["horizon"]),
+                diffusion=d.get("diffusion"),
             )
         except (ValueError, KeyError, TypeError) as e:
             raise LeRobotFormatError(
@@ -192,6 +210,14 @@ def describe(c: LeRobotContract) -> list[str]:
         if c.temporal_ensemble_coeff is not None
         else f"action queue ({c.n_action_steps} of {c.chunk_size} actions per call)"
     )
+    if c.diffusion is not None:
+        d = c.diffusion
+        ens = (
+            f"action queue ({c.n_action_steps} of a horizon of {c.horizon} per call, from "
+            f"index {c.n_obs_steps - 1}); {c.n_obs_steps} observations of history; "
+            f"{d['scheduler']} sampler, {d['num_inference_steps']} denoising steps of "
+            f"{d['num_train_timesteps']}"
+        )
     lines = [
         f"LeRobot {c.policy_type.upper()} policy ({c.source})",
         f"  state {c.state_dim}"
@@ -201,6 +227,12 @@ def describe(c: LeRobotContract) -> list[str]:
     ]
     for key, shape in c.cameras:
         lines.append(f"  camera {key}: {shape[0]}x{shape[1]}x{shape[2]} float32 [0, 1] RGB CHW")
+    if c.diffusion is not None and c.diffusion.get("crop_shape"):
+        rows, cols = c.diffusion["crop_shape"]
+        lines.append(f"  images centre-cropped to {rows}x{cols} in the graph (crop_shape)")
+    if c.diffusion is not None and c.diffusion.get("noise_inputs"):
+        shapes = ", ".join(f"{k} {v}" for k, v in c.diffusion["noise_inputs"].items())
+        lines.append(f"  noise inputs (standard normal, drawn per call by the runtime): {shapes}")
     for key, n in c.normalization.items():
         lines.append(f"  {key}: {n.mode}")
     return lines

@@ -164,7 +164,7 @@ def run_policies(args, robot) -> dict:
         spec = PolicySpec.from_json(Path(args.spec).read_text(), source=args.spec)
     if args.excitation is None:
         # --policy [NAME=]FILE, repeated; --inference for a LeRobot export's chunks
-        return load_policies(args.policies, robot, spec, inference=args.inference)
+        return load_policies(args.policies, robot, spec, inference=args.inference, seed=args.seed)
     from sim2real.deploy.policy.excitation import Excitation, ExcitationPolicy
 
     excitation = ExcitationPolicy(robot, Excitation.load(args.excitation))

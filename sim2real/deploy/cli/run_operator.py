@@ -72,9 +72,12 @@ def parse_policies(values: list[str]) -> dict[str, str]:
     return out
 
 
-def load_policies(files: dict[str, str], robot, spec=None, inference: str = "sync") -> dict:
+def load_policies(
+    files: dict[str, str], robot, spec=None, inference: str = "sync", seed: int = 0
+) -> dict:
     """{name: OnnxPolicy} of ``files`` for ``robot`` (``spec``: --spec, for every file;
-    ``inference``: --inference, a LeRobot export's network call, ``"sync"`` or ``"async"``).
+    ``inference``: --inference, a LeRobot export's network call, ``"sync"`` or ``"async"``;
+    ``seed``: --seed, a LeRobot Diffusion Policy's noise generator).
 
     Raises:
         ValueError: a policy that does not load or fit the robot, or that drives it another way
@@ -85,7 +88,9 @@ def load_policies(files: dict[str, str], robot, spec=None, inference: str = "syn
 
     policies, first = {}, None
     for name, path in files.items():
-        policy = _lerobot_policy(path, robot, spec, inference) or OnnxPolicy(path, robot, spec=spec)
+        policy = _lerobot_policy(path, robot, spec, inference, seed) or OnnxPolicy(
+            path, robot, spec=spec
+        )
         driven, _ = drive_robot(robot, policy.spec)
         drive = (
             policy.spec.action.mode,
@@ -108,7 +113,7 @@ def load_policies(files: dict[str, str], robot, spec=None, inference: str = "syn
     return policies
 
 
-def _lerobot_policy(path: str, robot, spec, inference: str = "sync"):
+def _lerobot_policy(path: str, robot, spec, inference: str = "sync", seed: int = 0):
     """A LeRobot export (its ``lerobot_contract`` metadata) as the runtime's chunked policy
     (:class:`~sim2real.deploy.policy.lerobot_policy.LeRobotChunkPolicy`), or None for any other
     file (the :class:`~sim2real.deploy.policy.onnx_policy.OnnxPolicy` reads it).
@@ -135,7 +140,7 @@ def _lerobot_policy(path: str, robot, spec, inference: str = "sync"):
     if lerobot.read_onnx(path).policy_type == "diffusion":
         from sim2real.deploy.policy.lerobot_diffusion_policy import DiffusionChunkPolicy
 
-        return DiffusionChunkPolicy(path, robot, inference=inference)
+        return DiffusionChunkPolicy(path, robot, seed=seed, inference=inference)
     from sim2real.deploy.policy.lerobot_policy import LeRobotChunkPolicy
 
     return LeRobotChunkPolicy(path, robot, inference=inference)

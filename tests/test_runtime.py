@@ -494,6 +494,30 @@ def test_a_so101_safe_stop_at_its_default_encoder_noise_ends_at_rest(so101, runt
     assert np.all(np.abs(rt.backend.true_velocity()) < rt.supervision.rest_speed)
 
 
+def test_the_rest_speed_is_what_the_joint_filter_resolves(so101, go2):
+    """The rest speed is twice the steady-state velocity standard deviation of the runtime's own
+    filter (the probe's equals the running filter's), which the estimate of a joint at rest
+    stays within; a legged robot's filter, fed its drives' velocity, keeps REST_SPEED."""
+    from sim2real.deploy.core.modes import REST_SPEED
+    from sim2real.deploy.estimation.rest import REST_SIGMAS, rest_speed, steady_velocity_sigma
+
+    sigma = steady_velocity_sigma(so101)
+    assert rest_speed(so101) == pytest.approx(REST_SIGMAS * sigma.max()) and sigma.max() > 0.1
+    rt = calm_runtime(so101, seed=2)
+    rt.run(seconds(rt, 0.5))
+    np.testing.assert_allclose(np.sqrt(rt.estimator.covariance[0, :, 1, 1]), sigma, rtol=1e-9)
+    assert rt.supervision.rest_speed == rest_speed(so101)
+    dq = []
+    for _ in range(seconds(rt, 2.0)):
+        rt.tick()
+        dq.append(rt.state.dq[0].copy())
+    assert np.all(np.abs(rt.backend.true_velocity()) < 1e-3)  # the arm itself is at rest
+    spread = np.std(dq, axis=0)
+    assert np.all(spread < sigma) and np.all(spread > 0.3 * sigma)  # noise, resolved by sigma
+    assert np.mean(np.abs(np.array(dq)).max(axis=1) < rest_speed(so101)) > 0.95
+    assert rest_speed(go2) == REST_SPEED
+
+
 #: A start 0.2 rad from home at the base and the wrist flex, inside the workspace box (margin
 #: 0.135 m): RAMP_IN moves it home.
 RAMP_OFFSET = np.array([0.2, 0.0, 0.0, 0.2, 0.0, 0.0])

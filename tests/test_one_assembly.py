@@ -45,9 +45,12 @@ def test_no_runtime_is_built_outside_the_rig():
 
 
 #: The modules that build a part outside the rig, and why. The soak's own-loop reference replays
-#: a fresh guard on another loop's states (no run of ours: nothing it changes is applied).
+#: a fresh guard on another loop's states (no run of ours: nothing it changes is applied). The
+#: rest speed's probe runs a one-env filter of the robot's defaults on readings of a joint at
+#: rest to read its steady-state covariance (a constant of the robot; no run's estimate).
 BY_HAND = {
     "sim2real/eval/soak/own_loop_limits.py": {"SafetyGuard"},
+    "sim2real/deploy/estimation/rest.py": {"JointStateEstimator"},
 }
 
 

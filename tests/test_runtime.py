@@ -459,9 +459,7 @@ def test_a_safe_stop_that_cannot_come_to_rest_latches_after_the_timeout(so101, r
 
 
 def test_a_safe_stop_that_comes_to_rest_latches_without_a_timeout(arm3):
-    """arm3, whose filter assumes its encoders' noise: the stop rests within the timeout. (On
-    so101, whose filter assumes one encoder count, the six estimated velocities are seldom below
-    REST_SPEED together even at its nominal noise: its stops mostly end by the timeout.)"""
+    """arm3, whose filter assumes its encoders' noise: the stop rests within the timeout."""
     from sim2real.deploy.core.modes import SAFE_STOP_TIMEOUT
 
     rt = calm_runtime(arm3, mode="velocity")
@@ -471,6 +469,87 @@ def test_a_safe_stop_that_comes_to_rest_latches_without_a_timeout(arm3):
     assert rt.mode[0] == Mode.FAULTED
     assert (rt.ticks - began) * rt.dt < SAFE_STOP_TIMEOUT
     assert rt.counters.safe_stop_timeouts[0] == 0 and rt.stop_ticks[0] == 0
+
+
+@pytest.mark.parametrize("runtime", [Runtime, ReferenceRuntime], ids=["compiled", "reference"])
+def test_a_so101_safe_stop_at_its_default_encoder_noise_ends_at_rest(so101, runtime):
+    """so101 at robot.toml's encoder noise (one count, read at 100 Hz): its filter's velocity
+    estimate of the arm at rest has a standard deviation of 0.13 rad/s a joint, so six joints
+    were seldom below REST_SPEED together and its stops ended by the timeout (counted in
+    safe_stop_timeouts). Rest is judged at the filter's resolution (Supervision.rest_speed): the
+    stop of an arm at rest ends at rest within a few ticks."""
+    from sim2real.deploy.core.modes import REST_SPEED, SAFE_STOP_TIMEOUT
+
+    rt = calm_runtime(so101, runtime=runtime, seed=1)
+    assert rt.backend.noise_sigma[0] == so101.config.sensors.encoder_noise_sigma
+    assert rt.supervision.rest_speed > REST_SPEED
+    began = stop_by_nan(rt)
+    timeout = int(np.ceil(SAFE_STOP_TIMEOUT / rt.dt - 1e-9))
+    while rt.mode[0] == Mode.SAFE_STOP and rt.ticks - began <= timeout:
+        rt.tick()
+    assert rt.mode[0] == Mode.FAULTED and rt.cause_names() == ["non_finite_action"]
+    assert rt.counters.safe_stop_timeouts[0] == 0
+    # the smoother's brake from rest is immediate: a few ticks, not the 200 of the timeout
+    assert rt.ticks - began < timeout // 4
+    assert np.all(np.abs(rt.backend.true_velocity()) < rt.supervision.rest_speed)
+
+
+def test_the_rest_speed_is_what_the_joint_filter_resolves(so101, go2):
+    """The rest speed is twice the steady-state velocity standard deviation of the runtime's own
+    filter (the probe's equals the running filter's), which the estimate of a joint at rest
+    stays within; a legged robot's filter, fed its drives' velocity, keeps REST_SPEED."""
+    from sim2real.deploy.core.modes import REST_SPEED
+    from sim2real.deploy.estimation.rest import REST_SIGMAS, rest_speed, steady_velocity_sigma
+
+    sigma = steady_velocity_sigma(so101)
+    assert rest_speed(so101) == pytest.approx(REST_SIGMAS * sigma.max()) and sigma.max() > 0.1
+    rt = calm_runtime(so101, seed=2)
+    rt.run(seconds(rt, 0.5))
+    np.testing.assert_allclose(np.sqrt(rt.estimator.covariance[0, :, 1, 1]), sigma, rtol=1e-9)
+    assert rt.supervision.rest_speed == rest_speed(so101)
+    dq = []
+    for _ in range(seconds(rt, 2.0)):
+        rt.tick()
+        dq.append(rt.state.dq[0].copy())
+    assert np.all(np.abs(rt.backend.true_velocity()) < 1e-3)  # the arm itself is at rest
+    spread = np.std(dq, axis=0)
+    assert np.all(spread < sigma) and np.all(spread > 0.3 * sigma)  # noise, resolved by sigma
+    assert np.mean(np.abs(np.array(dq)).max(axis=1) < rest_speed(so101)) > 0.95
+    assert rest_speed(go2) == REST_SPEED
+
+
+#: A start 0.2 rad from home at the base and the wrist flex, inside the workspace box (margin
+#: 0.135 m): RAMP_IN moves it home.
+RAMP_OFFSET = np.array([0.2, 0.0, 0.0, 0.2, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_so101_at_its_default_encoder_noise_ramps_in_and_runs(so101, seed):
+    """From 0.2 rad off home at robot.toml's encoder noise, RAMP_IN ends (RUNNING) within 1 s:
+    the smoother's time-optimal move of 0.2 rad at the slowest joint's limits (29 rad/s^2, 580
+    rad/s^3) takes 2 sqrt(0.2 / 29) + 29 / 580 = 0.22 s, the servo settles in about as long, and
+    at rest the six estimated speeds are below the rest speed on at least 98 % of ticks; 1 s is
+    twice that. Before, rest was judged at REST_SPEED, under the estimate's noise: RAMP_IN ended
+    after 10.7 s and 5.1 s (seeds 0, 1), or not within 15 s."""
+    backend = SimBackend(so101, "position", envs=1, seed=seed)
+    start = np.asarray(so101.home) + RAMP_OFFSET
+    backend.reset(start)
+    assert backend.noise_sigma[0] == so101.config.sensors.encoder_noise_sigma
+    rt = Runtime(so101, _CalmPolicy(_spec(so101)), backend)
+    assert rt.guard.envelope.workspace_margin(start).min() > 0.1
+    rt.start()
+    for _ in range(seconds(rt, 1.0)):
+        rt.tick()
+        if rt.mode[0] != Mode.RAMP_IN:
+            break
+    assert rt.mode_names() == ["RUNNING"]
+    assert np.abs(backend.true_position()[0] - so101.home).max() < 0.05
+
+
+def _spec(robot):
+    from sim2real.deploy.spec.policy_spec import PolicySpec
+
+    return PolicySpec.for_robot(robot, mode="position")
 
 
 def test_an_over_temperature_stop_that_cannot_rest_resumes_once_cool(so101):

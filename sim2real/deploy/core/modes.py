@@ -27,7 +27,9 @@ NAN_ACTION_LIMIT = 10
 #: half its periods for a second no longer walks on its policy.
 OVERRUN_RATE_LIMIT = {"position": 0.5, "velocity": 0.25, "torque": 0.25}
 OVERRUN_WINDOW_S = 1.0
-#: A joint is at rest below this speed, rad/s (ends a safe stop, ends RAMP_IN).
+#: A joint is at rest below this speed, rad/s (ends a safe stop, ends RAMP_IN), or below what
+#: its joint filter resolves where that is more (``Supervision.rest_speed``,
+#: :func:`sim2real.deploy.estimation.rest.rest_speed`: an arm's encoders' noise).
 REST_SPEED = 0.05
 #: RAMP_IN of a robot whose drives run a PD law on its targets (a legged robot) ends on its
 #: commanded pose at home with every joint slower than this, rad/s (our choice). Its low gains

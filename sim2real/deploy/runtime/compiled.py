@@ -23,7 +23,6 @@ from sim2real.deploy.core.modes import (
     HOME_TOLERANCE,
     NAN_ACTION_LIMIT,
     RAMP_GAIN,
-    REST_SPEED,
     Mode,
 )
 from sim2real.deploy.core.state import Kinematics, RobotState
@@ -112,7 +111,7 @@ class CompiledSupervision(TableCalls):
             [
                 robot.stale_limit,
                 self.overrun_rate_limit,
-                REST_SPEED,
+                s.rest_speed,
                 HOME_TOLERANCE,
                 tolerance,
                 self._stop_timeout,

@@ -21,7 +21,6 @@ from sim2real.deploy.core.modes import (
     NAN_ACTION_LIMIT,
     PD_RAMP_REST_SPEED,
     RAMP_IN,
-    REST_SPEED,
     RUNNING,
     SAFE_STOP,
 )
@@ -72,10 +71,10 @@ class ReferenceSupervision(Supervision):
         mode = self.mode
         if not (mode == RUNNING).all():  # else nothing to end (the common case)
             speed = np.abs(state.dq).max(axis=1)
-            at_rest = speed < REST_SPEED
+            at_rest = speed < self.rest_speed
             pose = self.smoother.commanded if self.home_from_command else state.q
             home = ((np.abs(pose - self.home) < HOME_TOLERANCE) | ~self.homed).all(axis=1)
-            ramp_rest = PD_RAMP_REST_SPEED if self.home_from_command else REST_SPEED
+            ramp_rest = PD_RAMP_REST_SPEED if self.home_from_command else self.rest_speed
             took_over = (mode == RAMP_IN) & (speed < ramp_rest) & home
             if took_over.any():
                 mode[took_over] = RUNNING

@@ -31,6 +31,7 @@ from sim2real.deploy.core.modes import (
     RuntimeCounters,
 )
 from sim2real.deploy.core.state import RobotState
+from sim2real.deploy.estimation.rest import rest_speed
 from sim2real.deploy.kernels import any_true
 from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
@@ -107,6 +108,11 @@ class Supervision:
         self.overrun_ring = np.zeros(window, dtype=np.int64)
         self._ring_at = 0
         self.home = np.asarray(robot.home)
+        #: rad/s, every joint's estimated speed below it is at rest (ends RAMP_IN and safe
+        #: stops): ``REST_SPEED`` or ``REST_SIGMAS`` of the joint filter's steady-state
+        #: velocity standard deviation, whichever is larger
+        #: (:func:`sim2real.deploy.estimation.rest.rest_speed`); a constant of the robot
+        self.rest_speed = rest_speed(robot)
         #: RAMP_IN ends on the smoother's commanded position at home (not the estimate's): a
         #: robot with PD targets (the kind's drive targets, a legged one) in position mode,
         #: whose drives' soft PD (the gains it was trained with) holds its weight short of the

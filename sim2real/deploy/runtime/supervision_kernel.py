@@ -101,7 +101,8 @@ def supervise(
         drive_errors: (envs, n) int64, the latched drive error bits.
         overrun_ring: (window,) int64, the last control periods, 1 where the loop missed one;
             read when ``realtime``: a stop when their mean passes ``OVERRUN_LIMIT``.
-        params: ``STALE_LIMIT`` s, ``OVERRUN_LIMIT`` fraction, ``REST_SPEED`` rad/s,
+        params: ``STALE_LIMIT`` s, ``OVERRUN_LIMIT`` fraction, ``REST_SPEED`` rad/s
+            (``Supervision.rest_speed``: the robot's, at least ``REST_SPEED``),
             ``HOME_TOLERANCE`` rad, ``TRACKING_TOLERANCE`` rad (of the control mode),
             ``STOP_TIMEOUT`` ticks (``sim2real.deploy.runtime.SAFE_STOP_TIMEOUT``),
             ``HOME_FROM_COMMAND`` (1: RAMP_IN's home is judged on ``commanded``, 0: on ``q``).

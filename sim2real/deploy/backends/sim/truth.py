@@ -11,6 +11,8 @@ the grounds under the envs (``grounds``: set by whoever laid a terrain into the 
 
 from __future__ import annotations
 
+from operator import is_
+
 import numpy as np
 
 
@@ -36,6 +38,10 @@ class TrueState:
         self.free_base = free_base
         self.qpos, self.qvel = qpos, qvel
         self.grounds: list | None = None
+        #: ``(datas, views)``: :meth:`base_state`'s views of each ``MjData``'s free joint
+        #: (``qpos[:7]``, ``qvel[:6]``; MuJoCo's arrays live as long as their data), made again
+        #: when an env's data is another: a view read each tick is a new array each time
+        self._base_views: tuple | None = None
 
     def position(self) -> np.ndarray:
         """(envs, n_joints) rad, the simulator's joint angles (evaluation only)."""
@@ -61,10 +67,18 @@ class TrueState:
         if not self.free_base:
             raise ValueError(f"robot {self.robot.name} has no floating base")
         out = np.empty((len(self.datas), 13)) if out is None else out
-        for e, d in enumerate(self.datas):
-            out[e, :7] = d.qpos[:7]
-            out[e, 7:] = d.qvel[:6]
+        datas, views = self.datas, self._base_views
+        if views is None or len(views[0]) != len(datas) or not all(map(is_, datas, views[0])):
+            views = self._base_views = (list(datas), [(d.qpos[:7], d.qvel[:6]) for d in datas])
+        for e, (position, velocity) in enumerate(views[1]):
+            out[e, :7] = position
+            out[e, 7:] = velocity
         return out
+
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) makes :meth:`base_state`'s views afresh: a copied
+        view is an array of its own, not one of the copied ``MjData``'s."""
+        return self.__dict__ | {"_base_views": None}
 
     def end_effector_position(self, out: np.ndarray | None = None) -> np.ndarray:
         """(envs, 3) m, the end-effector site in the world frame (evaluation only).

@@ -107,6 +107,9 @@ def test_compiled_sensors_equal_numpy(go2, case, monkeypatch):
         if k == 40:  # env 1 alone restarts: its forced sample is numpy's, the next compiled
             for plant in (fast, slow):
                 plant.reset(envs=np.array([False, True]))
+        if k == 55:  # new correlation times of the IMU's attitude error, set in place
+            for plant in (fast, slow):
+                plant.base_sensors.orientation_tau[0] = 0.25
         if k == 70:  # a new model for env 0: the compiled call reads the new MjData
             for plant in (fast, slow):
                 plant.set_model(0, go2.plant_model("position"))

@@ -305,6 +305,30 @@ def test_a_copied_plant_steps_its_own_data_as_the_original_does(arm6):
     assert twin.datas[0] is not plant.datas[0]
 
 
+def test_the_true_base_is_each_plants_own_after_a_copy_and_a_new_model(go2):
+    """``true_base_state`` reads the free joint of the plant's present ``MjData``: a copy's
+    its own (not the original's nor a stale copy of it), and a new model's data once set."""
+    import copy
+
+    plant = SimBackend(go2, "position", envs=2, seed=4)
+    command = np.tile(np.asarray(go2.home), (2, 1))
+
+    def own(p):
+        return np.stack([np.concatenate([d.qpos[:7], d.qvel[:6]]) for d in p.datas])
+
+    run(plant, command, 3)
+    np.testing.assert_array_equal(plant.true_base_state(), own(plant))
+    twin = copy.deepcopy(plant)
+    run(twin, command + 0.2, 20)  # the copy alone moves
+    np.testing.assert_array_equal(twin.true_base_state(), own(twin))
+    np.testing.assert_array_equal(plant.true_base_state(), own(plant))
+    assert not np.array_equal(twin.true_base_state(), plant.true_base_state())
+    plant.set_model(1, go2.plant_model("position"))
+    plant.reset()
+    run(plant, command, 2)
+    np.testing.assert_array_equal(plant.true_base_state(), own(plant))
+
+
 def test_kernel_arrays_are_the_live_arrays_of_their_models(arm3):
     """The compiled step keeps addresses: each model hands over its arrays, not copies."""
     plant = SimBackend(arm3)

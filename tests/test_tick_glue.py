@@ -76,3 +76,24 @@ def test_write_of_one_buffer_is_the_plain_write(arm3):
     with pytest.raises(NonFiniteCommandError):
         bound.write(buffer)
     assert bound.state_dict()["command"].tobytes() == before.tobytes()
+
+
+def test_a_copied_latency_histogram_counts_into_its_own_bins():
+    """A histogram's copy (``copy.deepcopy``, pickle: a soak checkpoint's) adds to its own
+    counts, the original's untouched; each sample in its 1-us bin, the overflow bin past 20 ms."""
+    import copy
+    import pickle
+
+    from sim2real.deploy.core.latency import BINS, LatencyHistogram
+
+    h = LatencyHistogram(2)
+    h.add(1, 5_400)
+    h.add(0, 10**9)  # past the last bin
+    h.add(0, -3)  # a clock step back: the first bin
+    for twin in (copy.deepcopy(h), pickle.loads(pickle.dumps(h))):
+        twin.add(1, 5_999)
+        assert twin.counts[1, 5] == 2 and twin.counts.sum() == 4
+        assert twin.max_ns.tolist() == [10**9, 5_999]
+    assert h.counts[1, 5] == 1 and h.counts[0, BINS] == 1 and h.counts[0, 0] == 1
+    assert h.counts.sum() == 3 and h.max_ns.tolist() == [10**9, 5_400]
+    assert h.percentile(1, 50) == 5.5

@@ -17,10 +17,21 @@ class LatencyHistogram:
         self.counts = np.zeros((stages, BINS + 1), dtype=np.int64)
         self.max_ns = np.zeros(stages, dtype=np.int64)
         self._rows = np.arange(stages)
+        self._flat = self.counts.reshape(-1)  # a view: one integer index per sample (add)
+
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) makes its flat view of its own ``counts`` afresh."""
+        return {k: v for k, v in self.__dict__.items() if k != "_flat"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._flat = self.counts.reshape(-1)
 
     def add(self, stage: int, ns: int) -> None:
+        """One sample of ``ns`` ns to stage ``stage`` (its bin, the overflow bin past 20 ms)."""
         ns = int(ns)
-        self.counts[stage, min(ns // BIN_NS, BINS) if ns > 0 else 0] += 1
+        k = ns // BIN_NS if ns > 0 else 0
+        self._flat[stage * (BINS + 1) + (k if k < BINS else BINS)] += 1
         if ns > self.max_ns[stage]:
             self.max_ns[stage] = ns
 

@@ -107,6 +107,28 @@ def any_true(mask) -> bool:
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
+def mark_at_least(a, value: int, out) -> bool:
+    """``np.greater_equal(a, value, out=out)`` of a 1-d integer array into the bool array ``out``
+    (same shape); returns ``out.any()``: one call for a mask and whether it is empty."""
+    some = False
+    for i in range(a.shape[0]):
+        x = a[i] >= value
+        out[i] = x
+        some = some or x
+    return some
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def differs(a, b) -> bool:
+    """Whether some entry of the 1-d float array ``a`` is not equal to ``b``'s (a NaN in
+    either differs): ``(a != b).any()`` without a temporary."""
+    for i in range(a.shape[0]):
+        if a[i] != b[i]:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
 def all_finite(a) -> bool:
     """``np.isfinite(a).all()`` of a float array (any shape) without a temporary."""
     for x in a.flat:

@@ -16,6 +16,7 @@ imports nothing above the kinds' floor.
 
 from __future__ import annotations
 
+import functools
 import operator
 
 import numpy as np
@@ -26,7 +27,7 @@ from sim2real.deploy.core.attitude_kernel import quat_mul_finite_rows
 from sim2real.deploy.core.modes import RAMP_IN, RUNNING, SAFE_STOP
 from sim2real.deploy.core.phase_clock import phase_clock_for
 from sim2real.deploy.core.state import RobotState
-from sim2real.deploy.kernels import any_true
+from sim2real.deploy.kernels import mark_at_least
 from sim2real.deploy.kernels.calls import bind, fits
 
 
@@ -64,6 +65,8 @@ class LeggedTick:
         self._backend_damp = getattr(runtime.backend, "damp", None)
         #: (envs,) bool: the envs whose command damps, this tick's
         self._damp = np.zeros(runtime.envs, dtype=bool)
+        self._damp_bound = None  # (mode, call): damp's compiled mask bound to the runtime's mode
+        mark_at_least(np.zeros(1, dtype=np.int8), SAFE_STOP, np.zeros(1, dtype=bool))  # compiled
         #: (4,) ``w x y z``: the base-to-IMU-site rotation, the conjugate of the site's in the
         #: base (the estimator's ``imu_to_base``): ``q_base = q_site * site_to_base``
         x, y, z, w = pin.Quaternion(np.asarray(base_estimator.imu_to_base, float)).coeffs()
@@ -145,12 +148,21 @@ class LeggedTick:
     def damp(self, cmd: np.ndarray, state: RobotState) -> None:
         """After the smoother: the command of the envs in SAFE_STOP or FAULTED damps (their
         drives' own damping mode too, where the backend has one)."""
-        rt = self.rt
-        damp = np.greater_equal(rt.mode, SAFE_STOP, out=self._damp)
-        if any_true(damp):
+        rt, damp, bound = self.rt, self._damp, self._damp_bound
+        if bound is None or bound[0] is not rt.mode:  # np.greater_equal and .any(), one call
+            bound = self._damp_bound = (rt.mode, self._damp_call(rt.mode))
+        if bound[1]():
             rt.supervision.damp(cmd, state, damp)
         if self._backend_damp is not None:  # drivers with a damping mode of their own
             self._backend_damp(damp)
+
+    def _damp_call(self, mode: np.ndarray):
+        """:meth:`damp`'s mask of ``mode`` into ``_damp``, answering whether any env damps: the
+        kernel bound to them where ``mode`` is a C-contiguous (envs,) int8 array, else through
+        numba's dispatch."""
+        if fits(mode, np.int8, (self.rt.envs,)):
+            return bind(mark_at_least, mode, SAFE_STOP, self._damp)
+        return functools.partial(mark_at_least, mode, SAFE_STOP, self._damp)
 
     def update(self, frame, state: RobotState) -> None:
         """After the joints' estimate: the base estimate from the IMU and leg kinematics, the

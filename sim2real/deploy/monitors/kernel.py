@@ -17,7 +17,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sim2real.deploy.kernels import np_max, pairs_may_touch
+from sim2real.deploy.kernels import np_max, pairs_may_touch, row_sum
 
 #: Bits of :func:`goal_screen`'s answer.
 ANY_RUNNING, ANY_DUE, ANY_CHECK = 1, 2, 4
@@ -159,6 +159,34 @@ def collision_screen(
     return any_need
 
 
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def pairs_to_check(
+    q: np.ndarray,
+    checked_q: np.ndarray,
+    pair_clearance: np.ndarray,
+    pair_weights: np.ndarray,
+    margin: float,
+    tmp: np.ndarray,
+    first: np.ndarray,
+    second: np.ndarray,
+    active: np.ndarray,
+    e: int,
+) -> int:
+    """:func:`collision_screen`'s test pair by pair for env ``e``: ``active[first[p],
+    second[p]]`` (written, (geoms, geoms) bool, Pinocchio's collision map) True for each pair
+    ``p`` that may touch at ``q[e]`` (the test of :func:`sim2real.deploy.kernels.pairs_may_touch`,
+    the same sums), False for a pair its bound keeps apart. Returns how many may touch."""
+    n = q.shape[1]
+    count = 0
+    for p in range(pair_weights.shape[0]):
+        for j in range(n):
+            tmp[e, j] = abs(q[e, j] - checked_q[e, j]) * pair_weights[p, j]
+        may = pair_clearance[e, p] <= row_sum(tmp, e) + margin
+        active[first[p], second[p]] = may
+        count += may
+    return count
+
+
 @numba.njit(cache=True, nogil=True)
 def counters_moved(current: np.ndarray, previous: np.ndarray) -> bool:
     """Whether any counter of ``current`` differs from ``previous`` (same shape, int64)."""
@@ -275,6 +303,11 @@ def warm_up() -> None:
     c = np.zeros((2, 3), dtype=np.int64)
     interventions_moved(c, c.copy(), c.copy(), c.copy(), np.zeros((2, 2, 3), dtype=np.int64))
     collision_screen(q, q, np.zeros((2, 1)), np.ones((1, 3)), 0.0, q.copy(), b.copy())
+    pair = np.zeros(1, dtype=np.int64)
+    pairs_to_check(
+        q, q, np.zeros((2, 1)), np.ones((1, 3)), 0.0, q.copy(), pair, pair,
+        np.zeros((1, 1), dtype=bool), 0,
+    )  # fmt: skip
     temperature_bands(q, np.zeros(3), np.zeros(3), q.copy(), q.copy(), q.astype(np.int64),
                       q.astype(np.int64))  # fmt: skip
     motion_statistics(

@@ -180,6 +180,18 @@ class ViolationMonitor(MonitorState):
         # each env's consecutive coal checks and the tick of its last (see _in_collision)
         self._run = np.zeros(envs, dtype=np.int64)
         self._last_check = np.full(envs, -2, dtype=np.int64)
+        # coal's pairs of a check between two measurements: those the screen lets touch
+        # (Pinocchio's collision map of the geoms; see _in_collision)
+        # (the upper triangle: Pinocchio's setActiveCollisionPairs reads a pair's entry there)
+        pairs = [sorted((p.first, p.second)) for p in self._geom_model.collisionPairs]
+        self._pair_first = np.array([p[0] for p in pairs], dtype=np.int64)
+        self._pair_second = np.array([p[1] for p in pairs], dtype=np.int64)
+        geoms = self._geom_model.ngeoms
+        self._pair_map = np.zeros((geoms, geoms), dtype=bool)
+        self._every_pair = np.zeros((geoms, geoms), dtype=bool)
+        self._every_pair[self._pair_first, self._pair_second] = True
+        self._some_pairs = False  # coal checks a part of the pairs (_pair_map) now
+        self._pairs_bound = None  # pairs_to_check bound to q (see _active_pairs)
         mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
@@ -308,17 +320,46 @@ class ViolationMonitor(MonitorState):
         self._run[e], self._last_check[e] = run, tick
         args = (self._model, self._data, self._geom_model, self._geom_data, q[e])
         if run % DISTANCE_REFRESH == 0:
+            self._every_pair_active()
             self._checked_q[e] = q[e]
             return collision_query(*args, distances=self._clearance[e])
+        if not self._active_pairs(q, e):  # no pair of env e may touch
+            return False
         hit = collision_query(*args)
         if hit:  # as a query with distances leaves them: all -inf, checked again next tick
+            self._every_pair_active()
             self._checked_q[e] = q[e]
             self._clearance[e] = -np.inf
         return hit
 
+    def _active_pairs(self, q: np.ndarray, e: int) -> bool:
+        """Let coal check only the pairs of env ``e`` that may touch at ``q[e]`` by the screen's
+        own bound, pair by pair (:func:`sim2real.deploy.monitors.kernel.pairs_to_check`, bound
+        to ``q``; a pair it keeps apart cannot touch, so the answer is the check of every pair);
+        returns whether any may. The contact query then walks those pairs only: a walking
+        robot's legs trip the screen on about half of its pairs a tick."""
+        bound = self._pairs_bound
+        if bound is None or bound[0] is not q:
+            args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
+            pairs = (self._pair_first, self._pair_second, self._pair_map)
+            self._pairs_bound = bound = (q, bind(mk.pairs_to_check, q, *args, *pairs, rest=(0,)))
+        if not bound[1](e):
+            return False
+        self._geom_data.setActiveCollisionPairs(self._geom_model, self._pair_map, True)
+        self._some_pairs = True
+        return True
+
+    def _every_pair_active(self) -> None:
+        """Let coal check every pair again (after :meth:`_active_pairs`): a measurement of the
+        distances and :meth:`_touching` walk all of them."""
+        if self._some_pairs:
+            self._geom_data.setActiveCollisionPairs(self._geom_model, self._every_pair, True)
+            self._some_pairs = False
+
     def _touching(self) -> np.ndarray:
         """(pairs,) bool, the pairs that touch (after a hit of :meth:`_in_collision`, whose
         placements the geometry data still holds)."""
+        self._every_pair_active()
         pin.computeCollisions(self._geom_model, self._geom_data, False)
         return np.array([r.isCollision() for r in self._geom_data.collisionResults], dtype=bool)
 

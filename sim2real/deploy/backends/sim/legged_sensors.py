@@ -34,6 +34,7 @@ import numpy as np
 from sim2real.deploy.backends.sim import legged_sensors_kernel as kernel
 from sim2real.deploy.backends.sim.sensors import draw
 from sim2real.deploy.core.attitude import align_up, quat_multiply, rotation_quaternions
+from sim2real.deploy.kernels import differs
 from sim2real.deploy.kernels.calls import bind
 from sim2real.robots import Robot
 
@@ -175,10 +176,14 @@ class BaseSensorModel:
         self._nsensor, self._nq = int(m.nsensordata), int(m.nq)
         self._touch_index = np.array(touch, dtype=np.int64)
         self._ratio, self._a = np.zeros(envs), np.zeros(envs)
+        # the correlation times ``_a`` was computed from (NaN: not yet) and the compiled test of
+        # whether they changed, bound to ``orientation_tau`` (see _sample)
+        self._tau_seen, self._tau_changed = np.full(envs, np.nan), None
         self._sample_call = self._read_call = self._sample_key = self._read_key = None
         self._bind_sample(None, np.zeros((envs, 3), dtype=np.int64))  # compiled (or loaded) now
         self._bind_read(backend.frame if hasattr(backend, "frame") else None)
         self._sample_key = self._read_key = None
+        differs(np.zeros(1), np.zeros(1))  # compiled (or loaded) now, not at the first tick
 
     def __getstate__(self) -> dict:
         """A copy (``copy.deepcopy``, pickle) holds no bound call nor ``MjData`` address (the
@@ -187,6 +192,7 @@ class BaseSensorModel:
         state["_sample_call"] = state["_read_call"] = None
         state["_sample_key"] = state["_read_key"] = None
         state["_data"] = np.zeros_like(self._data)
+        state["_tau_changed"] = None
         return state
 
     # ------------------------------------------------------------------ ground truth
@@ -274,11 +280,26 @@ class BaseSensorModel:
         if step is not self._sample_key:
             self._bind_sample(step, step.streams)
         imu_due = tick % self.imu_every == 0
-        if imu_due and self.has_orientation:  # numpy's exp, as the numpy path computes it
+        if imu_due and self.has_orientation and self._tau_differs():
+            # numpy's exp, as the numpy path computes it, when the correlation times changed
             dt = self.imu_every * self.robot.control_period
             np.exp(np.divide(-dt, self.orientation_tau, out=self._ratio), out=self._a)
+            np.copyto(self._tau_seen, self.orientation_tau)
         slot = tick % self._buf_imu_stamp.shape[0]
         self._sample_call(imu_due, tick % self.contact_every == 0, slot, time)
+
+    def _tau_differs(self) -> bool:
+        """Whether ``orientation_tau`` differs from the times ``_a`` was computed from (set or
+        loaded since; one compiled comparison bound to the array, :func:`~sim2real.deploy.
+        kernels.differs`)."""
+        tau, bound = self.orientation_tau, self._tau_changed
+        if bound is None or bound[0] is not tau:
+            if not (isinstance(tau, np.ndarray) and tau.dtype == np.float64 and tau.ndim == 1):
+                return True  # not an array the comparison takes: numpy's exp every time
+            if tau.shape != self._tau_seen.shape:
+                return True
+            bound = self._tau_changed = (tau, bind(differs, tau, self._tau_seen))
+        return bound[1]()
 
     def _bind_sample(self, step, streams: np.ndarray) -> None:
         """Bind the compiled sample to ``streams`` ((envs, 3), ``step``'s), the plant's present

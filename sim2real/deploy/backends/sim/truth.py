@@ -11,7 +11,12 @@ the grounds under the envs (``grounds``: set by whoever laid a terrain into the 
 
 from __future__ import annotations
 
+from operator import is_
+
+import numba
 import numpy as np
+
+from sim2real.deploy.kernels.calls import bind, pointer
 
 
 class TrueState:
@@ -36,6 +41,11 @@ class TrueState:
         self.free_base = free_base
         self.qpos, self.qvel = qpos, qvel
         self.grounds: list | None = None
+        #: ``(datas, call, base)``: :meth:`base_state`'s compiled gather of each ``MjData``'s
+        #: free joint (:meth:`_bind_base`), bound again when an env's data is another
+        self._base_views: tuple | None = None
+        if free_base:  # compiled (or loaded) now, not at the first tick
+            gather_base(np.zeros((0, 2), dtype=np.int64), np.zeros((0, 13)))
 
     def position(self) -> np.ndarray:
         """(envs, n_joints) rad, the simulator's joint angles (evaluation only)."""
@@ -60,11 +70,28 @@ class TrueState:
         """
         if not self.free_base:
             raise ValueError(f"robot {self.robot.name} has no floating base")
-        out = np.empty((len(self.datas), 13)) if out is None else out
-        for e, d in enumerate(self.datas):
-            out[e, :7] = d.qpos[:7]
-            out[e, 7:] = d.qvel[:6]
+        datas, kept = self.datas, self._base_views
+        if kept is None or len(kept[0]) != len(datas) or not all(map(is_, datas, kept[0])):
+            kept = self._base_views = self._bind_base(datas)
+        kept[1]()  # gather_base: every env's free joint into the kept (envs, 13) array
+        if out is None:
+            return kept[2].copy()
+        out[...] = kept[2]
         return out
+
+    @staticmethod
+    def _bind_base(datas: list) -> tuple:
+        """``(datas, call, base)``: :func:`gather_base` bound to each ``MjData``'s ``qpos`` and
+        ``qvel`` addresses (MuJoCo's arrays live as long as their data, which the tuple keeps)
+        and the (envs, 13) array it fills."""
+        addresses = np.array([[d.qpos.ctypes.data, d.qvel.ctypes.data] for d in datas])
+        base = np.zeros((len(datas), 13))
+        return list(datas), bind(gather_base, addresses.astype(np.int64), base), base
+
+    def __getstate__(self) -> dict:
+        """A copy (``copy.deepcopy``, pickle) binds :meth:`base_state`'s call afresh: the
+        addresses it holds are the original ``MjData``'s."""
+        return self.__dict__ | {"_base_views": None}
 
     def end_effector_position(self, out: np.ndarray | None = None) -> np.ndarray:
         """(envs, 3) m, the end-effector site in the world frame (evaluation only).
@@ -88,3 +115,17 @@ class TrueState:
             if ground is not None:
                 out[e] = float(ground.height_at(truth[e, 0], truth[e, 1]))
         return out
+
+
+@numba.njit(cache=True, nogil=True)
+def gather_base(addresses: np.ndarray, base: np.ndarray) -> None:
+    """Into ``base`` (envs, 13), each env's free joint: ``qpos[:7]`` and ``qvel[:6]`` of the
+    ``MjData`` whose ``qpos`` and ``qvel`` addresses are row ``e`` of ``addresses`` (envs, 2)
+    int64 (:meth:`TrueState.base_state`)."""
+    for e in range(base.shape[0]):
+        qpos = numba.carray(pointer(addresses[e, 0]), (7,), np.float64)
+        qvel = numba.carray(pointer(addresses[e, 1]), (6,), np.float64)
+        for i in range(7):
+            base[e, i] = qpos[i]
+        for i in range(6):
+            base[e, 7 + i] = qvel[i]

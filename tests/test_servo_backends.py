@@ -35,9 +35,9 @@ pytest.importorskip("dynamixel_sdk", reason="pip install '.[servo]'")
 from sim2real.deploy.backends.servo.dynamixel import DynamixelBackend  # noqa: E402
 from sim2real.deploy.backends.servo.feetech import FeetechBackend  # noqa: E402
 
-# On the wall clock against an emulator, after the suite, by itself (Makefile): beside two
-# CPU-bound loops even at nice 19 or SCHED_IDLE, 5-7 of these 19 missed servo replies on a 2-core
-# machine (1 beside one loop at normal priority, 0 alone); it must still hold beside other jobs.
+# On the wall clock against an emulator on a pty, beside the suite kept off one CPU (Makefile,
+# tests/spare_cpu.py): with every CPU busy, even at nice 19 or SCHED_IDLE, a pty's bytes wait for
+# a kernel worker and replies came later than the stale limit (5-7 of these 19 tests failed).
 pytestmark = [pytest.mark.wallclock, pytest.mark.alone]
 
 CASES = {

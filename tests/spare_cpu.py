@@ -85,19 +85,21 @@ def release(pidfile: str) -> int:
     if not text:
         return 0
     cpus = os.sched_getaffinity(0)
-    moved = 0
-    for pid in _descendants(int(text)):
-        try:
-            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-        except OSError:
-            continue
-        for tid in tids:
+    moved: set[int] = set()
+    for _ in range(2):  # again: a process forked while the first pass walked kept the old set
+        for pid in _descendants(int(text)):
             try:
-                os.sched_setaffinity(tid, cpus)
-                moved += 1
-            except OSError:  # gone meanwhile
-                pass
-    return moved
+                tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+            except OSError:
+                continue
+            for tid in tids:
+                try:
+                    if os.sched_getaffinity(tid) != cpus:
+                        os.sched_setaffinity(tid, cpus)
+                    moved.add(tid)
+                except OSError:  # gone meanwhile
+                    pass
+    return len(moved)
 
 
 def main(argv: list[str]) -> int:

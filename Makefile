@@ -31,37 +31,35 @@ run: install
 
 # The numba kernels are compiled once first (tests/warm_kernels.py). Then the rest of the suite
 # runs on TEST_WORKERS pytest-xdist workers (--dist loadgroup keeps the tests of one xdist_group
-# mark on one worker; TEST_WORKERS=0: one process), each with one thread, at `nice -n TEST_NICE`,
-# and beside it, in one background job at normal priority whose output is kept until the end,
-# the tests on the wall clock against an emulator. First those marked alone (the serial-bus
-# servos on a pty), while the suite is kept off one CPU (tests/spare_cpu.py: a pty's bytes cross
-# on a kernel worker that waits its turn when every CPU is busy, at any niceness of the suite:
-# replies later than the stale limit); then the suite gets every CPU back and the other
-# wall-clock tests (mark wallclock) run beside it (those must hold beside other jobs: the
-# suite's workers take only the CPU they leave). The last line is the tests' wall time,
-# "make test: N s" (the figure README.md quotes). The end-to-end tests too long for it (mark
-# nightly) run in make nightly. The two wall-clock runs collect only the files whose text names
-# their mark (WALLCLOCK_FILES, ALONE_FILES; the suite's collection fails on a test marked
+# mark on one worker; TEST_WORKERS=0: one process), each with one thread, in a session of its own
+# whose scheduling group and processes are at nice TEST_NICE (tests/nice_session.py: where the
+# kernel groups a session's processes, nice alone orders them only inside the group, and a pty's
+# bytes, which cross on a kernel worker, waited behind the suite). Beside it, in one background
+# job at normal priority whose output is kept until the end, the tests on the wall clock against
+# an emulator: the serial-bus servos on a pty (mark alone) first, then the others (mark
+# wallclock); the suite's workers take only the CPU they leave (those tests must hold beside
+# other jobs: a CPU-bound loop beside them is their check). The last line is the tests' wall
+# time, "make test: N s" (the figure README.md quotes). The end-to-end tests too long for it
+# (mark nightly) run in make nightly. The two wall-clock runs collect only the files whose text
+# names their mark (WALLCLOCK_FILES, ALONE_FILES; the suite's collection fails on a test marked
 # elsewhere, tests/conftest.py): collecting every module to select 19 tests took 16 CPU-s.
 TEST_WORKERS    ?= 2
 TEST_NICE       ?= 19
 WALLCLOCK_FILES := $(shell grep -l 'pytest\.mark\.wallclock' tests/test_*.py)
 ALONE_FILES     := $(shell grep -l 'pytest\.mark\.alone' tests/test_*.py)
 test: install lint
-	@start=$$(date +%s); wall_log=$$(mktemp); suite_pid=$$(mktemp); \
+	@start=$$(date +%s); wall_log=$$(mktemp); \
 	$(PY) tests/warm_kernels.py; \
-	( echo "== the wall-clock tests marked alone, beside the suite kept off one CPU:"; \
+	( echo "== the wall-clock tests marked alone (the servo bus on a pty), beside the suite:"; \
 	  $(PY) -m pytest -q -m "wallclock and alone and not nightly" $(ALONE_FILES); alone=$$?; \
-	  $(PY) tests/spare_cpu.py release $$suite_pid; \
 	  echo "== the other wall-clock tests (mark wallclock), beside the suite:"; \
 	  $(PY) -m pytest -q -m "wallclock and not alone and not nightly" $(WALLCLOCK_FILES); \
 	  walled=$$?; echo "wall-clock exit codes: alone $$alone, others $$walled"; \
 	  [ $$alone = 0 ] && [ $$walled = 0 ] ) > $$wall_log 2>&1 & wall=$$!; \
-	SIM2REAL_KERNELS_WARM=1 $(PY) tests/spare_cpu.py run $$suite_pid -- \
-		nice -n $(TEST_NICE) $(PY) -m pytest -q -n $(TEST_WORKERS) \
-		--dist loadgroup -m "not wallclock and not nightly"; suite=$$?; \
-	wait $$wall; walled=$$?; \
-	cat $$wall_log; rm -f $$wall_log $$suite_pid; \
+	SIM2REAL_KERNELS_WARM=1 $(PY) tests/nice_session.py $(TEST_NICE) -- \
+		$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock and not nightly"; \
+	suite=$$?; wait $$wall; walled=$$?; \
+	cat $$wall_log; rm -f $$wall_log; \
 	echo "make test: $$(( $$(date +%s) - start )) s"; \
 	[ $$suite = 0 ] && [ $$walled = 0 ]
 

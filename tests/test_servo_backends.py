@@ -35,9 +35,10 @@ pytest.importorskip("dynamixel_sdk", reason="pip install '.[servo]'")
 from sim2real.deploy.backends.servo.dynamixel import DynamixelBackend  # noqa: E402
 from sim2real.deploy.backends.servo.feetech import FeetechBackend  # noqa: E402
 
-# On the wall clock against an emulator on a pty, beside the suite kept off one CPU (Makefile,
-# tests/spare_cpu.py): with every CPU busy, even at nice 19 or SCHED_IDLE, a pty's bytes wait for
-# a kernel worker and replies came later than the stale limit (5-7 of these 19 tests failed).
+# On the wall clock against an emulator on a pty, beside the suite, whose session make test nices
+# as a scheduling group (tests/nice_session.py): a pty's bytes cross on a kernel worker, which
+# waited behind a suite niced only process by process (nice 19 or SCHED_IDLE: replies later than
+# the stale limit, 5-7 of these 19 tests failed).
 pytestmark = [pytest.mark.wallclock, pytest.mark.alone]
 
 CASES = {

@@ -38,20 +38,24 @@ run: install
 # job at normal priority whose output is kept until the end, the tests on the wall clock against
 # an emulator: the serial-bus servos on a pty (mark alone) first, then the others (mark
 # wallclock); the suite's workers take only the CPU they leave (those tests must hold beside
-# other jobs: a CPU-bound loop beside them is their check). The last line is the tests' wall
-# time, "make test: N s" (the figure README.md quotes). The end-to-end tests too long for it
-# (mark nightly) run in make nightly. The two wall-clock runs collect only the files whose text
-# names their mark (WALLCLOCK_FILES, ALONE_FILES; the suite's collection fails on a test marked
-# elsewhere, tests/conftest.py): collecting every module to select 19 tests took 16 CPU-s.
+# other jobs: a CPU-bound loop beside them is their check). ALONE_BESIDE=0 runs the servo tests
+# after the suite instead, by themselves (as before the niced session). The last line is the
+# tests' wall time, "make test: N s" (the figure README.md quotes). The end-to-end tests too long
+# for it (mark nightly) run in make nightly. The two wall-clock runs collect only the files whose
+# text names their mark (WALLCLOCK_FILES, ALONE_FILES; the suite's collection fails on a test
+# marked elsewhere, tests/conftest.py): collecting every module to select 19 tests took 16 CPU-s.
 TEST_WORKERS    ?= 2
 TEST_NICE       ?= 19
+ALONE_BESIDE    ?= 1
 WALLCLOCK_FILES := $(shell grep -l 'pytest\.mark\.wallclock' tests/test_*.py)
 ALONE_FILES     := $(shell grep -l 'pytest\.mark\.alone' tests/test_*.py)
+ALONE_RUN        = $(PY) -m pytest -q -m "wallclock and alone and not nightly" $(ALONE_FILES)
 test: install lint
 	@start=$$(date +%s); wall_log=$$(mktemp); \
 	$(PY) tests/warm_kernels.py; \
-	( echo "== the wall-clock tests marked alone (the servo bus on a pty), beside the suite:"; \
-	  $(PY) -m pytest -q -m "wallclock and alone and not nightly" $(ALONE_FILES); alone=$$?; \
+	( alone=0; if [ "$(ALONE_BESIDE)" = 1 ]; then \
+	    echo "== the wall-clock tests marked alone (the servo bus on a pty), beside the suite:"; \
+	    $(ALONE_RUN); alone=$$?; fi; \
 	  echo "== the other wall-clock tests (mark wallclock), beside the suite:"; \
 	  $(PY) -m pytest -q -m "wallclock and not alone and not nightly" $(WALLCLOCK_FILES); \
 	  walled=$$?; echo "wall-clock exit codes: alone $$alone, others $$walled"; \
@@ -60,8 +64,10 @@ test: install lint
 		$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock and not nightly"; \
 	suite=$$?; wait $$wall; walled=$$?; \
 	cat $$wall_log; rm -f $$wall_log; \
+	alone=0; if [ "$(ALONE_BESIDE)" != 1 ]; then \
+	  echo "== the wall-clock tests marked alone, by themselves:"; $(ALONE_RUN); alone=$$?; fi; \
 	echo "make test: $$(( $$(date +%s) - start )) s"; \
-	[ $$suite = 0 ] && [ $$walled = 0 ]
+	[ $$suite = 0 ] && [ $$walled = 0 ] && [ $$alone = 0 ]
 
 # The documentation site (mkdocs.yml: docs/ and the API reference from the source) into site/;
 # --strict: a broken link or anchor, or a docstring griffe cannot read, fails it.

@@ -29,35 +29,43 @@ run: install
 	$(VENV)/bin/deploy-run --backend sim --robot arm3 --policy $(ONNX) --duration 60 \
 		$(if $(VIDEO),--video $(VIDEO))
 
-# The numba kernels are compiled once first (tests/warm_kernels.py). Then two runs at once: the
-# tests on the wall clock against an emulator (mark wallclock) in one process at normal priority,
-# their output kept until the end; and the rest of the suite on TEST_WORKERS pytest-xdist workers
-# (--dist loadgroup keeps the tests of one xdist_group mark on one worker; TEST_WORKERS=0: one
-# process), each with one thread, at `nice -n TEST_NICE`: the workers take only the CPU the
-# wall-clock tests leave (those must hold beside other jobs at normal priority: a CPU-bound loop
-# beside them is their check). The wall-clock tests marked alone (the serial-bus servos on a pty:
-# replies missed with both cores busy, even with the suite at nice 19) run last, by themselves.
-# The last line is the tests' wall time, "make test: N s" (the figure README.md quotes). The
-# end-to-end tests too long for it (mark nightly) run in make nightly. The two wall-clock runs
-# collect only the files whose text names their mark (WALLCLOCK_FILES, ALONE_FILES; the suite's
-# collection fails on a test marked elsewhere, tests/conftest.py): collecting every module to
-# select 19 tests took 16 CPU-s.
+# The numba kernels are compiled once first (tests/warm_kernels.py). Then the rest of the suite
+# runs on TEST_WORKERS pytest-xdist workers (--dist loadgroup keeps the tests of one xdist_group
+# mark on one worker; TEST_WORKERS=0: one process), each with one thread, in a session of its own
+# whose scheduling group and processes are at nice TEST_NICE (tests/nice_session.py: where the
+# kernel groups a session's processes, nice alone orders them only inside the group, and a pty's
+# bytes, which cross on a kernel worker, waited behind the suite). Beside it, in one background
+# job at normal priority whose output is kept until the end, the tests on the wall clock against
+# an emulator: the serial-bus servos on a pty (mark alone) first, then the others (mark
+# wallclock); the suite's workers take only the CPU they leave (those tests must hold beside
+# other jobs: a CPU-bound loop beside them is their check). ALONE_BESIDE=0 runs the servo tests
+# after the suite instead, by themselves (as before the niced session). The last line is the
+# tests' wall time, "make test: N s" (the figure README.md quotes). The end-to-end tests too long
+# for it (mark nightly) run in make nightly. The two wall-clock runs collect only the files whose
+# text names their mark (WALLCLOCK_FILES, ALONE_FILES; the suite's collection fails on a test
+# marked elsewhere, tests/conftest.py): collecting every module to select 19 tests took 16 CPU-s.
 TEST_WORKERS    ?= 2
 TEST_NICE       ?= 19
+ALONE_BESIDE    ?= 1
 WALLCLOCK_FILES := $(shell grep -l 'pytest\.mark\.wallclock' tests/test_*.py)
 ALONE_FILES     := $(shell grep -l 'pytest\.mark\.alone' tests/test_*.py)
+ALONE_RUN        = $(PY) -m pytest -q -m "wallclock and alone and not nightly" $(ALONE_FILES)
 test: install lint
 	@start=$$(date +%s); wall_log=$$(mktemp); \
 	$(PY) tests/warm_kernels.py; \
-	$(PY) -m pytest -q -m "wallclock and not alone and not nightly" $(WALLCLOCK_FILES) \
-		> $$wall_log 2>&1 & wall=$$!; \
-	SIM2REAL_KERNELS_WARM=1 nice -n $(TEST_NICE) $(PY) -m pytest -q -n $(TEST_WORKERS) \
-		--dist loadgroup -m "not wallclock and not nightly"; suite=$$?; \
-	wait $$wall; walled=$$?; \
-	echo "== the wall-clock tests (mark wallclock), run beside the suite:"; cat $$wall_log; \
-	rm -f $$wall_log; \
-	echo "== the wall-clock tests marked alone, by themselves:"; \
-	$(PY) -m pytest -q -m "wallclock and alone and not nightly" $(ALONE_FILES); alone=$$?; \
+	( alone=0; if [ "$(ALONE_BESIDE)" = 1 ]; then \
+	    echo "== the wall-clock tests marked alone (the servo bus on a pty), beside the suite:"; \
+	    $(ALONE_RUN); alone=$$?; fi; \
+	  echo "== the other wall-clock tests (mark wallclock), beside the suite:"; \
+	  $(PY) -m pytest -q -m "wallclock and not alone and not nightly" $(WALLCLOCK_FILES); \
+	  walled=$$?; echo "wall-clock exit codes: alone $$alone, others $$walled"; \
+	  [ $$alone = 0 ] && [ $$walled = 0 ] ) > $$wall_log 2>&1 & wall=$$!; \
+	SIM2REAL_KERNELS_WARM=1 $(PY) tests/nice_session.py $(TEST_NICE) -- \
+		$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not wallclock and not nightly"; \
+	suite=$$?; wait $$wall; walled=$$?; \
+	cat $$wall_log; rm -f $$wall_log; \
+	alone=0; if [ "$(ALONE_BESIDE)" != 1 ]; then \
+	  echo "== the wall-clock tests marked alone, by themselves:"; $(ALONE_RUN); alone=$$?; fi; \
 	echo "make test: $$(( $$(date +%s) - start )) s"; \
 	[ $$suite = 0 ] && [ $$walled = 0 ] && [ $$alone = 0 ]
 

@@ -580,6 +580,7 @@ POSITIONAL_MODULES = {
     "sim2real/deploy/backends/sim/legged_sensors_kernel.py",  # each env's MjData sensordata, qpos
     "sim2real/deploy/backends/sim/plant_kernel.py",  # each env's MjData arrays (views)
     "sim2real/deploy/rig/after_tick_kernel.py",  # each env's MjData qpos, qvel, site
+    "sim2real/deploy/backends/sim/truth.py",  # each env's MjData qpos, qvel (the true base)
 }
 
 

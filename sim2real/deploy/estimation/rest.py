@@ -2,16 +2,14 @@
 
 The runtime ends RAMP_IN and a safe stop when every joint's *estimated* speed is below a rest
 speed. The estimate of a joint at rest is not zero: it carries the encoder's noise through the
-filter. On the MuJoCo plant at each robot's default encoder noise (one count, 0.00153 rad, on the
-so101 at 100 Hz; 0.0157 rad on arm3 at 200 Hz) the largest estimated speed of an arm at rest has
-a median of 0.19 rad/s (so101), 0.11 (arm3), 0.06 (arm6) and 0.08 rad/s (ur5): above
-``REST_SPEED`` (0.05 rad/s) on most ticks, so those transitions waited for a lucky tick, and the
-so101's safe stops ended by their timeout.
+filter. At the arms' default encoder noise the largest estimated speed of an arm at rest lies above
+``REST_SPEED`` on most ticks (docs/measurements.md), so those transitions waited for a lucky
+tick, and a safe stop ended by its timeout.
 
 :func:`rest_speed` is therefore ``REST_SPEED`` or :data:`REST_SIGMAS` times the filter's own
 steady-state velocity standard deviation (:func:`steady_velocity_sigma`, the largest over the
-joints), whichever is larger. The drives of the legged robots report their velocity (0.02
-rad/s of noise): their filters resolve 0.02 rad/s and keep ``REST_SPEED``.
+joints), whichever is larger. The drives of the legged robots report their velocity: their
+filters resolve less than ``REST_SPEED`` and keep it.
 """
 
 from __future__ import annotations
@@ -26,10 +24,8 @@ from sim2real.robots import Robot
 #: Standard deviations of the filter's steady-state velocity below which an estimated speed is
 #: indistinguishable from rest (our choice). The filter's variance assumes white acceleration of
 #: half the acceleration limit (``PROCESS_NOISE_FRACTION``), which a joint at rest has not: the
-#: measured spread of its estimate at rest is 0.52-0.70 of that standard deviation (so101 0.13 of
-#: 0.21 rad/s, arm3 0.085 of 0.164, arm6 0.044 of 0.085, ur5 0.071 of 0.129; plant, default
-#: noise, 10 s x 4 envs). Two of them are at least 2.9 measured standard deviations: a joint at
-#: rest is below the rest speed on 99.6 % of ticks or more, the six of the so101 together on 98 %.
+#: measured spread of its estimate at rest is about half to two thirds of that standard deviation
+#: (docs/measurements.md), so two of them are nearly three measured ones.
 REST_SIGMAS = 2.0
 
 #: Readings the probe filter absorbs at most before its covariance has settled; it stops when

@@ -178,17 +178,13 @@ class ViolationMonitor(MonitorState):
         self._tmp = np.zeros((envs, n))
         self._screen_bound = self._collision_bound = None  # the screens' calls (see _screen)
         # each env's consecutive coal checks and the tick of its last (see _in_collision)
-        self._run = np.zeros(envs, dtype=np.int64)
-        self._last_check = np.full(envs, -2, dtype=np.int64)
-        # coal's pairs of a check between two measurements: those the screen lets touch
-        # (Pinocchio's collision map of the geoms; see _in_collision)
-        # (the upper triangle: Pinocchio's setActiveCollisionPairs reads a pair's entry there)
+        self._run, self._last_check = np.zeros(envs, np.int64), np.full(envs, -2, np.int64)
+        # coal's pairs of a check between measurements, those the screen lets touch (_in_collision),
+        # in the upper triangle of the geoms' map (where setActiveCollisionPairs reads a pair)
         pairs = [sorted((p.first, p.second)) for p in self._geom_model.collisionPairs]
-        self._pair_first = np.array([p[0] for p in pairs], dtype=np.int64)
-        self._pair_second = np.array([p[1] for p in pairs], dtype=np.int64)
-        geoms = self._geom_model.ngeoms
-        self._pair_map = np.zeros((geoms, geoms), dtype=bool)
-        self._every_pair = np.zeros((geoms, geoms), dtype=bool)
+        pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        self._pair_first, self._pair_second = pairs[:, 0].copy(), pairs[:, 1].copy()
+        self._pair_map, self._every_pair = np.zeros((2,) + (self._geom_model.ngeoms,) * 2, bool)
         self._every_pair[self._pair_first, self._pair_second] = True
         self._some_pairs = False  # coal checks a part of the pairs (_pair_map) now
         self._pairs_bound = None  # pairs_to_check bound to q (see _active_pairs)
@@ -334,10 +330,8 @@ class ViolationMonitor(MonitorState):
 
     def _active_pairs(self, q: np.ndarray, e: int) -> bool:
         """Let coal check only the pairs of env ``e`` that may touch at ``q[e]`` by the screen's
-        own bound, pair by pair (:func:`sim2real.deploy.monitors.kernel.pairs_to_check`, bound
-        to ``q``; a pair it keeps apart cannot touch, so the answer is the check of every pair);
-        returns whether any may. The contact query then walks those pairs only: a walking
-        robot's legs trip the screen on about half of its pairs a tick."""
+        bound, pair by pair (:func:`sim2real.deploy.monitors.kernel.pairs_to_check`, bound to
+        ``q``: a pair it keeps apart cannot touch); returns whether any may."""
         bound = self._pairs_bound
         if bound is None or bound[0] is not q:
             args = (self._checked_q, self._clearance, self._pair_weights, self._margin, self._tmp)
@@ -350,8 +344,7 @@ class ViolationMonitor(MonitorState):
         return True
 
     def _every_pair_active(self) -> None:
-        """Let coal check every pair again (after :meth:`_active_pairs`): a measurement of the
-        distances and :meth:`_touching` walk all of them."""
+        """Let coal check every pair again (for a distance measurement and :meth:`_touching`)."""
         if self._some_pairs:
             self._geom_data.setActiveCollisionPairs(self._geom_model, self._every_pair, True)
             self._some_pairs = False

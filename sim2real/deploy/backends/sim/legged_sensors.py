@@ -176,8 +176,7 @@ class BaseSensorModel:
         self._nsensor, self._nq = int(m.nsensordata), int(m.nq)
         self._touch_index = np.array(touch, dtype=np.int64)
         self._ratio, self._a = np.zeros(envs), np.zeros(envs)
-        # the correlation times ``_a`` was computed from (NaN: not yet) and the compiled test of
-        # whether they changed, bound to ``orientation_tau`` (see _sample)
+        # the correlation times ``_a`` was computed from (NaN: not yet), their test (_tau_differs)
         self._tau_seen, self._tau_changed = np.full(envs, np.nan), None
         self._sample_call = self._read_call = self._sample_key = self._read_key = None
         self._bind_sample(None, np.zeros((envs, 3), dtype=np.int64))  # compiled (or loaded) now
@@ -190,9 +189,8 @@ class BaseSensorModel:
         plant's, which the copy builds anew): it binds its own at its first compiled tick."""
         state = dict(self.__dict__)
         state["_sample_call"] = state["_read_call"] = None
-        state["_sample_key"] = state["_read_key"] = None
+        state["_sample_key"] = state["_read_key"] = state["_tau_changed"] = None
         state["_data"] = np.zeros_like(self._data)
-        state["_tau_changed"] = None
         return state
 
     # ------------------------------------------------------------------ ground truth
@@ -281,7 +279,6 @@ class BaseSensorModel:
             self._bind_sample(step, step.streams)
         imu_due = tick % self.imu_every == 0
         if imu_due and self.has_orientation and self._tau_differs():
-            # numpy's exp, as the numpy path computes it, when the correlation times changed
             dt = self.imu_every * self.robot.control_period
             np.exp(np.divide(-dt, self.orientation_tau, out=self._ratio), out=self._a)
             np.copyto(self._tau_seen, self.orientation_tau)
@@ -289,15 +286,13 @@ class BaseSensorModel:
         self._sample_call(imu_due, tick % self.contact_every == 0, slot, time)
 
     def _tau_differs(self) -> bool:
-        """Whether ``orientation_tau`` differs from the times ``_a`` was computed from (set or
-        loaded since; one compiled comparison bound to the array, :func:`~sim2real.deploy.
-        kernels.differs`)."""
+        """Whether ``orientation_tau`` changed since ``_a`` (numpy's exp, as the numpy path has it)
+        was computed from it (one compiled comparison, :func:`sim2real.deploy.kernels.differs`)."""
         tau, bound = self.orientation_tau, self._tau_changed
         if bound is None or bound[0] is not tau:
-            if not (isinstance(tau, np.ndarray) and tau.dtype == np.float64 and tau.ndim == 1):
+            ok = isinstance(tau, np.ndarray) and tau.dtype == np.float64 and tau.ndim == 1
+            if not ok or tau.shape != self._tau_seen.shape:
                 return True  # not an array the comparison takes: numpy's exp every time
-            if tau.shape != self._tau_seen.shape:
-                return True
             bound = self._tau_changed = (tau, bind(differs, tau, self._tau_seen))
         return bound[1]()
 

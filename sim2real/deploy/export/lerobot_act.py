@@ -23,6 +23,7 @@ so that several chunks and their boundaries are compared.
 
 from __future__ import annotations
 
+import importlib
 import io
 import time
 from dataclasses import dataclass
@@ -63,23 +64,27 @@ class LeRobotExport:
     seconds: float
 
 
-def _lerobot():
+def _lerobot(module: str, name: str):
     try:
-        from lerobot.policies.act.modeling_act import ACTPolicy
+        policy_class = getattr(importlib.import_module(module), name)
         from lerobot.policies.factory import make_pre_post_processors
     except ImportError as e:
         raise ExportError(
             f"exporting a LeRobot policy needs lerobot's own classes: pip install "
             f"'sim2real-deploy[lerobot]' (in its own environment; {_first_line(e)})"
         ) from None
-    return ACTPolicy, make_pre_post_processors
+    return policy_class, make_pre_post_processors
 
 
-def load_policy(folder: Path):
-    """lerobot's ``ACTPolicy`` and its processors from ``folder``, eval mode, on the CPU."""
-    ACTPolicy, make_pre_post_processors = _lerobot()
+def load_lerobot(folder: Path, module: str, name: str):
+    """lerobot's policy class ``name`` of ``module`` and its processors from ``folder``, eval
+    mode, on the CPU (ACT's, Diffusion Policy's).
+
+    Raises:
+        ExportError: lerobot is not installed, or it could not load the folder (one line)."""
+    policy_class, make_pre_post_processors = _lerobot(module, name)
     try:
-        policy = ACTPolicy.from_pretrained(str(folder))
+        policy = policy_class.from_pretrained(str(folder))
         policy.config.device = "cpu"
         policy.to("cpu").eval()
         pre, post = make_pre_post_processors(
@@ -92,6 +97,11 @@ def load_policy(folder: Path):
             f"{folder}: lerobot could not load the policy ({_first_line(e)})"
         ) from None
     return policy, pre, post
+
+
+def load_policy(folder: Path):
+    """lerobot's ``ACTPolicy`` and its processors from ``folder``, eval mode, on the CPU."""
+    return load_lerobot(folder, "lerobot.policies.act.modeling_act", "ACTPolicy")
 
 
 def norm_module(contract: lr.LeRobotContract, keys):

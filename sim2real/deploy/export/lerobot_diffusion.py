@@ -40,6 +40,7 @@ from sim2real.deploy.export.errors import ExportError, ParityError, _first_line
 from sim2real.deploy.export.lerobot_act import (
     LeRobotExport,
     action_scale,
+    load_lerobot,
     norm_module,
     random_observation,
 )
@@ -59,35 +60,9 @@ OUTPUT = "action_chunk"
 NOISE, VARIANCE_NOISE = "noise", "variance_noise"
 
 
-def _lerobot():
-    try:
-        from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
-        from lerobot.policies.factory import make_pre_post_processors
-    except ImportError as e:
-        raise ExportError(
-            f"exporting a LeRobot policy needs lerobot's own classes: pip install "
-            f"'sim2real-deploy[lerobot]' (in its own environment; {_first_line(e)})"
-        ) from None
-    return DiffusionPolicy, make_pre_post_processors
-
-
 def load_policy(folder: Path):
     """lerobot's ``DiffusionPolicy`` and its processors from ``folder``, eval mode, CPU."""
-    DiffusionPolicy, make_pre_post_processors = _lerobot()
-    try:
-        policy = DiffusionPolicy.from_pretrained(str(folder))
-        policy.config.device = "cpu"
-        policy.to("cpu").eval()
-        pre, post = make_pre_post_processors(
-            policy.config,
-            pretrained_path=str(folder),
-            preprocessor_overrides={"device_processor": {"device": "cpu"}},
-        )
-    except Exception as e:  # noqa: BLE001 - lerobot's loaders raise many kinds
-        raise ExportError(
-            f"{folder}: lerobot could not load the policy ({_first_line(e)})"
-        ) from None
-    return policy, pre, post
+    return load_lerobot(folder, "lerobot.policies.diffusion.modeling_diffusion", "DiffusionPolicy")
 
 
 @dataclass(frozen=True)

@@ -100,6 +100,30 @@ def put(fields: Mapping[str, np.ndarray], state: Mapping, env: int | None) -> No
         target[index] = state[key]
 
 
+def load_named(parts: Iterable[tuple[str, object]], state: Mapping, env: int | None) -> None:
+    """Load each ``(name, stage)`` of ``parts`` from the keys ``<name>/...`` of ``state`` (its
+    ``load_state_dict``; of every env, or of env ``env``): one stage's parts under their names,
+    as several cameras of one policy are kept.
+
+    Raises:
+        StateDictError: (or what a stage raises) a stage's field missing or of another shape;
+            nothing is written: the stages loaded before it are put back first.
+    """
+    done = []
+    try:
+        for name, part in parts:
+            head = f"{name}/"
+            before = part.state_dict(env)
+            part.load_state_dict(
+                {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
+            )
+            done.append((part, before))
+    except Exception:
+        for part, before in done:
+            part.load_state_dict(before, env)
+        raise
+
+
 def scalar(state: Mapping, key: str, kind: type[Scalar]) -> Scalar:
     """``state[key]`` as a Python ``kind`` (int, float, bool or str; a 0-d array is accepted).
 

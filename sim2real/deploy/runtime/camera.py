@@ -36,7 +36,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from sim2real.deploy.core.stateful import put, take
+from sim2real.deploy.core.stateful import load_named, put, take
 from sim2real.deploy.runtime.height_map import height_map_stage
 from sim2real.deploy.spec.camera import DepthImageBlock, RgbImageBlock, check_frames, preprocess
 
@@ -287,19 +287,7 @@ class CameraInputs:
     def load_state_dict(self, state, env: int | None = None) -> None:
         """Raises StateDictError: a camera's field missing or of another shape (nothing
         written: the cameras loaded before it are put back)."""
-        done = []
-        try:
-            for c in self.inputs:
-                head = f"{c.block.camera}/"
-                before = c.state_dict(env)
-                c.load_state_dict(
-                    {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
-                )
-                done.append((c, before))
-        except Exception:
-            for c, before in done:
-                c.load_state_dict(before, env)
-            raise
+        load_named(((c.block.camera, c) for c in self.inputs), state, env)
 
 
 def exteroception(spec, state, envs: int, robot, backend) -> tuple:

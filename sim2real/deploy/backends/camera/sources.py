@@ -8,6 +8,8 @@ scene's goal, closing them, their report lines."""
 
 from __future__ import annotations
 
+from sim2real.deploy.core.stateful import load_named
+
 
 class CameraSources:
     """Sources by camera name, in the spec's order of its image blocks.
@@ -38,20 +40,8 @@ class CameraSources:
         Raises:
             StateDictError: a source's field missing or of another shape (nothing written: the
                 sources loaded before it are put back)."""
-        done = []
-        try:
-            for name, src in self.sources.items():
-                if hasattr(src, "load_state_dict"):
-                    head = f"{name}/"
-                    before = src.state_dict(env)
-                    src.load_state_dict(
-                        {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}, env
-                    )
-                    done.append((src, before))
-        except Exception:
-            for src, before in done:
-                src.load_state_dict(before, env)
-            raise
+        parts = [(n, s) for n, s in self.sources.items() if hasattr(s, "load_state_dict")]
+        load_named(parts, state, env)
 
     def show_goal(self, goal) -> None:
         """Every source's task scene shows ``goal`` (a plant camera's ``show_goal``)."""

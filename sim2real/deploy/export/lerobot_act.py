@@ -316,7 +316,6 @@ def export_lerobot_act(
         ParityError: The file disagrees with ``select_action`` beyond :data:`PARITY_RTOL`; the
             candidate is kept as ``<stem>.parity-failed.onnx`` and nothing is written at ``out``.
     """
-    import onnx
 
     t0 = time.perf_counter()
     folder = Path(folder)
@@ -336,9 +335,36 @@ def export_lerobot_act(
         )
     policy, pre, post = load_policy(folder)
     model = _to_onnx(graph_module(policy, contract), contract)
+    return save_checked(
+        model,
+        contract,
+        folder,
+        out,
+        robot,
+        "lerobot_act",
+        lambda candidate: select_action_parity(candidate, policy, pre, post, contract, ticks, seed),
+        (PARITY_RTOL, "ONNX + action chunks vs lerobot's select_action"),
+        ticks,
+        t0,
+    )
+
+
+def save_checked(model, contract, folder, out, robot, source_format, parity, check, ticks, t0):
+    """Write ``model`` with its contract's metadata (``source_format``, ``robot``, the tools'
+    versions) as a candidate beside ``out`` (default ``folder/policy.onnx``), check it with
+    ``parity(candidate) -> (max abs error, max error of the action's scale, calls)`` against
+    ``check`` = ``(tolerance, what was compared)``, and keep it as ``out`` only if it passes
+    (ACT's and Diffusion Policy's exports).
+
+    Raises:
+        ParityError: the error over the tolerance; the candidate kept as
+            ``<out>.parity-failed.onnx``, the figures attached.
+    """
+    import onnx
+
     from sim2real.deploy.export.graph import set_metadata, tool_versions
 
-    meta = {lr.METADATA_KEY: contract.to_json(), "source_format": "lerobot_act"}
+    meta = {lr.METADATA_KEY: contract.to_json(), "source_format": source_format}
     if robot is not None:
         meta["robot"] = robot
     meta.update({f"version.{k}": v for k, v in tool_versions().items()})
@@ -347,16 +373,15 @@ def export_lerobot_act(
     out.parent.mkdir(parents=True, exist_ok=True)
     candidate = out.with_name(out.stem + ".candidate.onnx")
     onnx.save(model, str(candidate))
-    abs_err, rel_err, calls = select_action_parity(
-        candidate, policy, pre, post, contract, ticks, seed
-    )
+    abs_err, rel_err, calls = parity(candidate)
     figures = {"max_abs_error": abs_err, "max_rel_error": rel_err, "ticks": ticks, "calls": calls}
-    if not rel_err <= PARITY_RTOL:
+    rtol, what = check
+    if not rel_err <= rtol:
         failed = out.with_name(out.stem + ".parity-failed.onnx")
         candidate.replace(failed)
         raise ParityError(
-            f"{out}: ONNX + action chunks vs lerobot's select_action: max error {rel_err:.2e} of "
-            f"the action's scale > {PARITY_RTOL:.0e} (candidate kept as {failed})",
+            f"{out}: {what}: max error {rel_err:.2e} of the action's scale > {rtol:.0e} "
+            f"(candidate kept as {failed})",
             figures,
         )
     candidate.replace(out)

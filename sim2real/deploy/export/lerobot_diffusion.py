@@ -36,13 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
-from sim2real.deploy.export.errors import ExportError, ParityError, _first_line
+from sim2real.deploy.export.errors import ExportError, _first_line
 from sim2real.deploy.export.lerobot_act import (
     LeRobotExport,
     action_scale,
     load_lerobot,
     norm_module,
     random_observation,
+    save_checked,
 )
 from sim2real.deploy.policy.action_chunks import ActionChunks
 from sim2real.deploy.policy.obs_history import ObservationHistory
@@ -325,7 +326,6 @@ def export_lerobot_diffusion(
         ParityError: beyond :data:`PARITY_RTOL`; the candidate is kept as
             ``<stem>.parity-failed.onnx`` and nothing is written at ``out``.
     """
-    import onnx
 
     t0 = time.perf_counter()
     folder = Path(folder)
@@ -365,29 +365,15 @@ def export_lerobot_diffusion(
     finally:
         for e, c in zip(encoders, crops, strict=True):
             e.do_crop = c
-    from sim2real.deploy.export.graph import set_metadata, tool_versions
-
-    meta = {lr.METADATA_KEY: contract.to_json(), "source_format": "lerobot_diffusion"}
-    if robot is not None:
-        meta["robot"] = robot
-    meta.update({f"version.{k}": v for k, v in tool_versions().items()})
-    set_metadata(model, meta)
-    out = Path(out) if out is not None else folder / "policy.onnx"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    candidate = out.with_name(out.stem + ".candidate.onnx")
-    onnx.save(model, str(candidate))
-    abs_err, rel_err, calls = select_action_parity(
-        candidate, policy, pre, post, contract, ticks, seed
+    return save_checked(
+        model,
+        contract,
+        folder,
+        out,
+        robot,
+        "lerobot_diffusion",
+        lambda candidate: select_action_parity(candidate, policy, pre, post, contract, ticks, seed),
+        (PARITY_RTOL, "ONNX + action queue vs lerobot's select_action (same noise)"),
+        ticks,
+        t0,
     )
-    figures = {"max_abs_error": abs_err, "max_rel_error": rel_err, "ticks": ticks, "calls": calls}
-    if not rel_err <= PARITY_RTOL:
-        failed = out.with_name(out.stem + ".parity-failed.onnx")
-        candidate.replace(failed)
-        raise ParityError(
-            f"{out}: ONNX + action queue vs lerobot's select_action (same noise): max error "
-            f"{rel_err:.2e} of the action's scale > {PARITY_RTOL:.0e} (candidate kept as "
-            f"{failed})",
-            figures,
-        )
-    candidate.replace(out)
-    return LeRobotExport(out, contract, abs_err, rel_err, ticks, calls, time.perf_counter() - t0)

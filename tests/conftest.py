@@ -1,4 +1,5 @@
 import functools
+import gc
 import os
 import subprocess
 import sys
@@ -10,6 +11,8 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 if "PYTEST_XDIST_WORKER" in os.environ:  # the workers share the cores: one thread each
     for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
+
+gc.disable()  # while the test modules are imported: on again after (pytest_collection_finish)
 
 import pytest  # noqa: E402
 
@@ -24,6 +27,7 @@ def pytest_configure(config):
     not when ``SIM2REAL_KERNELS_WARM`` is set (``make test`` compiles them before both its runs)."""
     if "PYTEST_XDIST_WORKER" in os.environ or not getattr(config.option, "numprocesses", 0):
         return
+    gc.enable()  # the xdist controller collects no test module (pytest_collection_finish)
     if os.environ.get("SIM2REAL_KERNELS_WARM"):
         return
     env = dict(
@@ -115,7 +119,20 @@ def _worker() -> str:
     return os.environ.get("PYTEST_XDIST_WORKER", "main")
 
 
+# The garbage collector in a test process. A worker imports every test module at collection
+# (torch, MuJoCo, Pinocchio, numba, ONNX Runtime...): ~570,000 tracked objects, which one full
+# collection walks in ~0.4 s. CPython ran ~25 full collections while the modules were imported
+# (half a worker's collection time), and every Runtime built in a test collects every generation
+# once (Runtime.__init__: its set-up's garbage), as do the emulators' loops (core/collector.py).
+# So the collector is off while the modules are imported (from conftest's import, which comes
+# first) and on again after, and each test runs over a frozen heap (gc.freeze: what exists
+# at its start is in the permanent generation, which collections skip; gc.unfreeze at its end,
+# so nothing a test left stays uncollected): a full collection in a test walks that test's own
+# objects. The runtime's run and the emulators' loops freeze the heap too and leave it frozen when
+# it was at their start (sim2real/deploy/core/collector.py, heap_frozen: the freeze nests).
 def pytest_collection_finish(session):
+    if not gc.isenabled():
+        gc.enable()
     if CPU_LOG:
         _cpu_line(_worker(), "<collection>", "-", f"{_cpu_s():.3f}", "-", f"{time.time():.3f}")
 
@@ -128,6 +145,31 @@ def _cpu_phase(item, phase):
     yield
     cpu, wall = _cpu_s() - cpu, time.perf_counter() - wall
     _cpu_line(_worker(), item.nodeid, phase, f"{cpu:.3f}", f"{wall:.3f}", f"{time.time():.3f}")
+
+
+#: The frozen heap may grow by this fraction (objects a test keeps, or garbage cycles a fixture
+#: dropped while the heap was frozen) before a test first collects the whole heap once.
+HEAP_GROWTH = 0.25
+_heap = {"collected": 0}
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Each test over a frozen heap (see :func:`pytest_collection_finish`). After it, its own
+    garbage cycles are collected (the heap is still frozen: a walk of its own objects only);
+    a heap grown by :data:`HEAP_GROWTH` since the last whole collection is collected whole
+    first, so cycles let go while frozen (a module fixture's) are not kept for the session."""
+    gc.freeze()
+    if gc.get_freeze_count() > (1 + HEAP_GROWTH) * _heap["collected"]:
+        gc.unfreeze()
+        gc.collect()
+        gc.freeze()
+        _heap["collected"] = gc.get_freeze_count()
+    try:
+        yield
+    finally:
+        gc.collect()
+        gc.unfreeze()
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -629,6 +629,38 @@ def test_collections_inside_the_loop_are_counted(tmp_path, arm3):
     assert rt.gc_collections == 3
 
 
+def test_a_run_leaves_the_heap_as_it_found_it_frozen_or_not(tmp_path, arm3):
+    """The run freezes the heap for its loop and unfreezes it after, unless the heap was frozen
+    at its start (an outer owner: an emulator's loop in the same process, a harness): then it is
+    left frozen, and what the outer freeze holds is not handed back to the collector mid-loop.
+    The emulators' pause (core.collector.collector_paused) nests the same way."""
+    import gc
+
+    from sim2real.deploy.core.collector import collector_paused
+
+    rt = make_runtime(tmp_path, arm3, "velocity")
+    outer = gc.get_freeze_count()
+    gc.unfreeze()  # this test process's own harness may have frozen the heap: start unfrozen
+    try:
+        rt.run(3)
+        assert gc.get_freeze_count() == 0  # unfrozen after: it froze it
+        gc.freeze()
+        frozen = gc.get_freeze_count()
+        rt.run(3)
+        with collector_paused():
+            rt.run(3)
+        assert gc.get_freeze_count() >= frozen > 0  # left frozen: not theirs to unfreeze
+        gc.unfreeze()
+        with collector_paused():
+            assert gc.get_freeze_count() > 0 and not gc.isenabled()
+            rt.run(3)
+            assert gc.get_freeze_count() > 0 and not gc.isenabled()  # the pause still holds
+        assert gc.get_freeze_count() == 0 and gc.isenabled()
+    finally:
+        if outer:
+            gc.freeze()
+
+
 # ---------------------------------------------------------------- a plan Ruckig cannot compute
 @pytest.mark.parametrize("how", ["beyond_limits", "not_finite"])
 def test_a_plan_ruckig_cannot_compute_stops_that_env_and_the_run_goes_on(arm3, how):

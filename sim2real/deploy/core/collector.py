@@ -16,6 +16,12 @@ process's previous state restored.
 
 A loop under the pause must not make reference cycles per step: nothing would reclaim them until
 it ends.
+
+The freeze nests (:func:`heap_frozen`): a pause that finds the heap already frozen (an outer pause,
+a runtime's run beside an emulator's loop in one process, a test harness that runs each test over
+a frozen heap) leaves it frozen at its end; the one that froze it unfreezes it. Unfreezing there
+would hand every object of the process back to the collector while the outer loop still runs,
+and the next full collection would walk them all.
 """
 
 from __future__ import annotations
@@ -26,21 +32,35 @@ from contextlib import contextmanager
 
 
 @contextmanager
+def heap_frozen() -> Iterator[None]:
+    """Run the body with every object that exists at its start in the permanent generation
+    (:func:`gc.freeze`: collections skip it), then :func:`gc.unfreeze` unless the heap was
+    already frozen at the start (``gc.get_freeze_count() > 0``: an outer freeze owns it)."""
+    outer = gc.get_freeze_count() > 0
+    gc.freeze()
+    try:
+        yield
+    finally:
+        if not outer:
+            gc.unfreeze()
+
+
+@contextmanager
 def collector_paused() -> Iterator[None]:
     """Run the body with the garbage collector frozen and disabled (module docstring).
 
     On entry: ``gc.collect()`` (every generation), ``gc.freeze()``, ``gc.disable()``. On exit,
-    however the body ends: the collector enabled again if it was, and ``gc.unfreeze()``. Nested
-    or concurrent uses (an emulator's thread beside a runtime in one test process) leave the
-    collector enabled once the last of them whose entry found it enabled exits.
+    however the body ends: the collector enabled again if it was, and ``gc.unfreeze()`` unless
+    the heap was frozen at entry (:func:`heap_frozen`). Nested or concurrent uses (an emulator's
+    thread beside a runtime in one test process) leave the collector enabled once the last of
+    them whose entry found it enabled exits, and the heap unfrozen by the one that froze it.
     """
     gc.collect()
-    gc.freeze()
-    was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_enabled:
-            gc.enable()
-        gc.unfreeze()
+    with heap_frozen():
+        was_enabled = gc.isenabled()
+        gc.disable()
+        try:
+            yield
+        finally:
+            if was_enabled:
+                gc.enable()

@@ -11,6 +11,8 @@ from __future__ import annotations
 import gc
 import time
 
+from sim2real.deploy.core.collector import heap_frozen
+
 
 def _gc_collections() -> int:
     """Collections of the garbage collector so far in this process, every generation."""
@@ -38,7 +40,8 @@ class RunLoop:
         self.gc_collections = 0
 
     def run(self, ticks: int, on_tick=None) -> None:
-        """Run ``ticks`` control periods with the garbage collector frozen and disabled.
+        """Run ``ticks`` control periods with the garbage collector frozen and disabled (the
+        freeze nests: :func:`~sim2real.deploy.core.collector.heap_frozen`).
 
         Before the loop the collector runs over the young generations (0 and 1). The set-up's
         garbage was collected over every generation once, when the runtime was built: a full
@@ -53,21 +56,20 @@ class RunLoop:
         fresh = getattr(self.clock, "fresh", False)  # a wall clock's first run: start() collected
         if not fresh:
             gc.collect(1)
-        gc.freeze()
-        was_enabled = gc.isenabled()
-        gc.disable()
-        if fresh:  # a wall clock not yet waited on: the set-up since start() is not the first
-            self.clock.start()  # tick's overrun
-        self.woke(time.perf_counter_ns())
-        collections = _gc_collections()
-        tick, runtime = self.tick, self.runtime
-        try:
-            for _ in range(ticks):
-                tick()
-                if on_tick is not None and on_tick(runtime):
-                    break
-        finally:
-            self.gc_collections += _gc_collections() - collections
-            if was_enabled:
-                gc.enable()
-            gc.unfreeze()
+        with heap_frozen():  # unfrozen after, unless an outer freeze owns it (core.collector)
+            was_enabled = gc.isenabled()
+            gc.disable()
+            if fresh:  # a wall clock not yet waited on: the set-up since start() is not the first
+                self.clock.start()  # tick's overrun
+            self.woke(time.perf_counter_ns())
+            collections = _gc_collections()
+            tick, runtime = self.tick, self.runtime
+            try:
+                for _ in range(ticks):
+                    tick()
+                    if on_tick is not None and on_tick(runtime):
+                        break
+            finally:
+                self.gc_collections += _gc_collections() - collections
+                if was_enabled:
+                    gc.enable()

@@ -92,13 +92,13 @@ def test_fall_detection_trips_on_a_pushed_over_robot_and_not_on_a_standing_one(
     go2, stand_policy, reference
 ):
     rt, plant = runtime(go2, stand_policy, reference=reference)
-    rt.run(50)  # 1 s standing, with encoder and IMU noise (env 1 stands 4.3 s in all)
+    rt.run(150)  # 3 s standing, with encoder and IMU noise
     assert rt.counters.faults["fall"].sum() == 0
     assert (rt.mode == Mode.RUNNING).all()
     plant.set_external_force(0, np.array([0.0, 300.0, 0.0]))  # env 0 shoved sideways
     rt.run(15)
     plant.set_external_force(0, np.zeros(3))
-    rt.run(150)  # latched about 100 ticks after the push
+    rt.run(150)
     assert rt.counters.faults["fall"].tolist() == [1, 0]
     assert rt.cause_names()[0] == "fall" and rt.mode[1] == Mode.RUNNING
     assert rt.mode[0] == Mode.FAULTED  # latched once the joints came to rest

@@ -1,7 +1,7 @@
 """The training env (sim2real/policies/envs.py) and the PPO-to-checkpoint conversion (sim2real/policies/train.py)."""
 
-from dataclasses import replace
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest

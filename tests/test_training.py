@@ -160,9 +160,8 @@ def test_episodes_start_at_the_given_missed_poses(arm3):
 
 def test_training_ships_only_a_policy_that_passes_the_soak(tmp_path):
     """An untrained policy fails the shipping soak: the candidate and the soak's report stay in
-    the log folder, with the soak's film (the soak command's default, filmed here as a user's
-    soak-test films: the one run of that path through the command in make test), and --out is
-    not written."""
+    the log folder, with the soak's film (the soak command's default: the film of a session
+    run through soak-test's main, asserted here), and --out is not written."""
     pytest.importorskip("stable_baselines3")
     from sim2real.policies.train import main
 

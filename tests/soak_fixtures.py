@@ -48,17 +48,17 @@ def kill_after_first_checkpoint(config, out: Path, timeout: float = 120.0) -> No
     out = Path(out)
     cfg_file = out.parent / f"{out.name}.config.pkl"
     cfg_file.write_bytes(pickle.dumps(config))
+    # no torch: an ONNX policy's session never imports it (importing it cost 1.7 CPU-s per
+    # kill); one OpenMP thread should anything import it
     script = (
         "import pickle, sys\n"
-        "import torch\n"
-        "torch.set_num_threads(1)\n"
         "from sim2real.eval.soak.campaign import run_campaign\n"
         "run_campaign(pickle.load(open(sys.argv[1], 'rb')), 1, sys.argv[2], progress=False)\n"
     )
     proc = subprocess.Popen(
         [sys.executable, "-c", script, str(cfg_file), str(out)],
         cwd=REPO,
-        env=dict(os.environ, ORT_DISABLE_TELEMETRY="1"),
+        env=dict(os.environ, ORT_DISABLE_TELEMETRY="1", OMP_NUM_THREADS="1"),
         start_new_session=True,
     )
     manifest = session_dir(out, config.seed) / ckpt.MANIFEST

@@ -204,7 +204,8 @@ def test_a_deterministic_policy_replays_exactly_from_a_kept_checkpoint(tmp_path,
         ranges=SessionRanges(faults=faults),
     )
     results = run_campaign(config, 1, tmp_path / "soak", progress=False, recorders=(FilmRecorder,))
-    (result,) = film_campaign(config, results, tmp_path / "soak", fps=10.0, size=(240, 180))
+    # two clips: the first hard violation's (from the start) and one past the 30-s checkpoint
+    (result,) = film_campaign(config, results, tmp_path / "soak", **LOOK)
     late = [c for c in result["film"]["clips"] if c["from_tick"] > 0]
     assert late and all(c["start_s"] >= c["from_tick"] * arm3.control_period for c in late)
     assert all(c["replay_exact"] is True and c["checked"] >= 1 for c in late)

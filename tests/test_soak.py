@@ -616,7 +616,9 @@ def test_a_legged_policys_pd_targets_past_its_range_are_reported_not_judged(batc
 def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
     """Two batches in a local process pool (``--workers 1``: one spawned process runs both; a
     second process cost a second interpreter's imports and kernel loads), the reports, then the
-    same campaign against baselines (--resume of a finished campaign runs nothing again)."""
+    same campaign against baselines (--resume of a finished campaign runs nothing again).
+    Without the film (``--no-film``): the command's default film is asserted in
+    test_training's gate soak, the film itself in test_film."""
     out = tmp_path / "run"
     base = [
         "--robot",
@@ -642,6 +644,7 @@ def test_soak_test_cli_end_to_end(policy, tmp_path, capsys):
         "--max-interventions",
         "1",
         "--no-progress",
+        "--no-film",
         "--workers",  # one process runs both batches: the pool's path at one start's cost
         "1",
     ]

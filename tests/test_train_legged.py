@@ -60,7 +60,7 @@ def test_a_candidate_ships_only_through_its_soak_gate(tmp_path):
     out = tmp_path / "ship" / "go2.pt"
     args = ["--envs", "2", "--steps", "32", "--n-steps", "16", "--batch-size", "16"]
     args += ["--epochs", "1", "--save-every", "0", "--logdir", str(tmp_path), "--out", str(out)]
-    code = main(args + ["--gate-hours", "0.002", "--gate-sessions", "2", "--gate-seed", "40"])
+    code = main(args + ["--gate-hours", "0.001", "--gate-sessions", "2", "--gate-seed", "40"])
     report = json.loads((tmp_path / "go2_seed1.gate" / "report.json").read_text())
     assert [s["seed"] for s in report["sessions"]] == [40, 41]
     assert code == (0 if report["passed"] else 1)

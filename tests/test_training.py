@@ -1,5 +1,6 @@
 """The training env (sim2real/policies/envs.py) and the PPO-to-checkpoint conversion (sim2real/policies/train.py)."""
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -159,18 +160,23 @@ def test_episodes_start_at_the_given_missed_poses(arm3):
 
 def test_training_ships_only_a_policy_that_passes_the_soak(tmp_path):
     """An untrained policy fails the shipping soak: the candidate and the soak's report stay in
-    the log folder and --out is not written."""
+    the log folder, with the soak's film (the soak command's default: the film of a session
+    run through soak-test's main, asserted here), and --out is not written."""
     pytest.importorskip("stable_baselines3")
     from sim2real.policies.train import main
 
     out = tmp_path / "ship" / "arm.pt"
     args = ["--steps", "256", "--envs", "2", "--n-steps", "64", "--batch-size", "64"]
     args += ["--anneal-steps", "0", "--logdir", str(tmp_path), "--out", str(out), "--no-progress"]
-    code = main(args + ["--gate-hours", "0.003", "--gate-sessions", "1"])
+    code = main(args + ["--gate-hours", "0.0015", "--gate-sessions", "1"])  # 5.4 s, one goal
     assert code == 1
     assert not out.exists()
     assert (tmp_path / "arm3_velocity_seed1.pt").exists()
-    assert (tmp_path / "arm3_velocity_seed1.gate" / "report.json").exists()
+    gate = tmp_path / "arm3_velocity_seed1.gate"
+    (session,) = json.loads((gate / "report.json").read_text())["sessions"]
+    film = session["film"]
+    assert film["error"] is None and film["clips"]
+    assert all((gate / c["video"]).is_file() for c in film["clips"])
     assert main(args + ["--gate-hours", "0"]) == 0  # without the gate it ships
     assert out.exists() and out.with_suffix(".curve.json").exists()
 

@@ -389,6 +389,8 @@ def _barrier_one_np(t, q, v, hi, effort, d, c, inv_i, stuck_brakes: bool) -> np.
     kd, kp = c[KD], c[KP]
     brake = np.maximum((effort - d) * c[BRAKE], 0.0) * inv_i
     unsafe = _unsafe_np(t, q, v, hi, d, c, effort, brake, inv_i)
+    if not unsafe.any():  # every target safe: itself, as the kernel returns it
+        return t
     far = effort + effort
     far = far + kd * np.abs(v)
     far = q - far / kp

@@ -49,6 +49,7 @@ from sim2real.deploy.backends.sim.plant_kernel import (
 )
 from sim2real.deploy.backends.sim.sensors import JointSensorModel
 from sim2real.deploy.backends.sim.state import MujocoState, PlantState
+from sim2real.deploy.backends.sim.stepping import step_period
 from sim2real.deploy.backends.sim.truth import TrueState
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame
 from sim2real.deploy.core.delegate import delegate, forward
@@ -391,7 +392,7 @@ class SimBackend(BackendLifecycle):
                 stepped; the thermal and sensor models have not, the streams have not drawn
                 unless they are not numpy Generators).
         """
-        compiled, nstep, step = self._compiled, self.decimation, mujoco.mj_step
+        compiled, nstep = self._compiled, self.decimation
         tick = self.tick
         status = compiled.before(tick)  # before_physics(table, tick)
         if status & STALE:  # a copied plant: views of its own MjData, its own table
@@ -402,15 +403,9 @@ class SimBackend(BackendLifecycle):
             status = compiled.before(tick)
         if status & DERATE:
             self.drives.set_derated_limits(self.thermal.winding_temperature)
-        if not self._stepwise:
-            for m, d, _ctrl, _q, _force, _warnings in self._views:
-                step(m, d, nstep=nstep)
-        else:  # delayed commands, and a torque range that follows the joint speed
-            substep = compiled.substep  # actuator_substep(table, e, tick, sub), bound
-            for e, (m, d, _ctrl, _q, _force, _warnings) in enumerate(self._views):
-                for sub in range(nstep):
-                    substep(e, tick, sub)
-                    step(m, d)
+        # the sensors in the last step only; with delayed commands or a torque range that
+        # follows the joint speed one step at a time (actuator_substep(table, e, tick, sub))
+        step_period(self._views, nstep, compiled.substep if self._stepwise else None, tick)
         tick += 1
         sensors = self.joint_sensors
         sample = NO_SAMPLE

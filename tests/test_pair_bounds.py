@@ -11,6 +11,7 @@ from sim2real.deploy.monitors.pair_bounds import APART, PairBounds, pair_lower_b
 from sim2real.deploy.monitors.violations import ViolationMonitor
 from sim2real.deploy.safety.collision import collision_model
 from sim2real.robots import load_robot
+from sim2real.robots.chain_bounds import collision_pair_weights
 
 
 def _bounds_and_distances(robot, poses: int, seed: int):
@@ -23,10 +24,12 @@ def _bounds_and_distances(robot, poses: int, seed: int):
     assert bounds is not None
     pairs, n = len(geom_model.collisionPairs), robot.n_joints
     checked, clearance = np.zeros((1, n)), np.zeros((1, pairs))
+    weights = collision_pair_weights(robot)
     rng = np.random.default_rng(seed)
     for _ in range(poses):
         q = rng.uniform(robot.position_lower, robot.position_upper)[None]
-        near = pair_lower_bounds(q, *bounds.arrays(), checked, clearance, APART, 0)
+        clearance.fill(-np.inf)  # none measured yet: every pair's bound measured at q
+        near = pair_lower_bounds(q, *bounds.arrays(), weights, 1e-9, checked, clearance, APART, 0)
         assert np.array_equal(checked, q)
         hit = pin.computeCollisions(model, data, geom_model, geom_data, q[0], False)
         pin.computeDistances(geom_model, geom_data)

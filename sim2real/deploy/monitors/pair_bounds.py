@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 #: m: a pair whose lower bound exceeds this is not in contact for coal (see the module
-#: docstring): 100 x coal's GJK tolerance (1e-6 m), far above the bounds' round-off (1e-12 m).
+#: docstring): 100 x coal's GJK tolerance (1e-6 m, its default), far above the bounds' round-off.
 APART = 1e-4
 #: geometry kinds of the kernel
 CAPSULE, BOX = 0, 1
@@ -238,8 +238,9 @@ def _closest_line(box, half, cap, length: float) -> tuple:
 
 
 @numba.njit(cache=True, nogil=True, _nrt=False)
-def _pair_bound(fa, ka: int, sa, fb, kb: int, sb) -> float:
-    """A lower bound of the distance of two placed geometries (see the module docstring)."""
+def _pair_bound(fa, ka: int, sa, fb, kb: int, sb, apart: float) -> float:
+    """A lower bound of the distance of two placed geometries (see the module docstring); of a
+    box, from its first axes that put it past ``apart`` (m)."""
     if ka == CAPSULE and kb == CAPSULE:
         ha, hb = sa[1], sb[1]
         pa = (fa[3, 0] - ha * fa[0, 2], fa[3, 1] - ha * fa[1, 2], fa[3, 2] - ha * fa[2, 2])
@@ -247,16 +248,18 @@ def _pair_bound(fa, ka: int, sa, fb, kb: int, sb) -> float:
         pb = (fb[3, 0] - hb * fb[0, 2], fb[3, 1] - hb * fb[1, 2], fb[3, 2] - hb * fb[2, 2])
         ub = (2.0 * hb * fb[0, 2], 2.0 * hb * fb[1, 2], 2.0 * hb * fb[2, 2])
         return _segment_distance(pa, ua, pb, ub) - sa[0] - sb[0]
-    best = _gap(
-        fa, ka, sa, fb, kb, sb, fb[3, 0] - fa[3, 0], fb[3, 1] - fa[3, 1], fb[3, 2] - fa[3, 2]
-    )
+    best = -np.inf
     if ka != kb:  # a box and a capsule: the line between their nearest points, nearly
         if ka == BOX:
             ax, ay, az = _closest_line(fa, sa, fb, sb[1])
         else:
             ax, ay, az = _closest_line(fb, sb, fa, sa[1])
             ax, ay, az = -ax, -ay, -az
-        best = max(best, _gap(fa, ka, sa, fb, kb, sb, ax, ay, az))
+        best = _gap(fa, ka, sa, fb, kb, sb, ax, ay, az)
+        if best > apart:  # enough: the other axes only for a pair this one leaves near
+            return best
+    dx, dy, dz = fb[3, 0] - fa[3, 0], fb[3, 1] - fa[3, 1], fb[3, 2] - fa[3, 2]
+    best = max(best, _gap(fa, ka, sa, fb, kb, sb, dx, dy, dz))
     for i in range(3):
         if ka == BOX:
             best = max(best, _gap(fa, ka, sa, fb, kb, sb, fa[0, i], fa[1, i], fa[2, i]))
@@ -268,24 +271,43 @@ def _pair_bound(fa, ka: int, sa, fb, kb: int, sb) -> float:
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def pair_lower_bounds(
     q, joints, joint_frames, joint_axes, geoms, geom_frames, shapes, pairs, frames, placed,
-    checked_q, clearance, apart: float, e: int,
+    weights, margin: float, checked_q, clearance, apart: float, e: int,
 ) -> bool:  # fmt: skip
     """Each collision pair's lower bound of its distance (m) at env ``e``'s joint angles
     ``q[e]`` (rad), less ``apart``, into ``clearance[e]`` ((envs, P) m) and ``q[e]`` into
     ``checked_q[e]`` ((envs, n) rad; the monitor's joint-motion screen reads both), with the
     arrays of :meth:`PairBounds.arrays`; returns whether some pair's bound is ``apart`` or less
-    (it may touch: coal must check)."""
+    (it may touch: coal must check). A pair the joints' motion since ``checked_q[e]`` cannot
+    have brought within its clearance (``weights`` (P, n) m/rad, the screen's
+    :func:`sim2real.robots.chain_bounds.collision_pair_weights`, and its ``margin`` m) keeps
+    that clearance less the motion's bound and ``margin``, unmeasured."""
+    n = q.shape[1]
+    placed_now = False
+    near = False
+    for p in range(pairs.shape[0]):
+        moved = 0.0
+        for j in range(n):
+            moved += abs(q[e, j] - checked_q[e, j]) * weights[p, j]
+        if clearance[e, p] > moved + margin:  # still apart: the bound follows the motion
+            clearance[e, p] -= moved + margin
+            continue
+        if not placed_now:
+            _place(q, e, joints, joint_frames, joint_axes, geoms, geom_frames, frames, placed)
+            placed_now = True
+        a, b = pairs[p, 0], pairs[p, 1]
+        d = _pair_bound(placed[a], geoms[a, 1], shapes[a], placed[b], geoms[b, 1], shapes[b], apart)
+        clearance[e, p] = d - apart
+        near = near or not d > apart  # NaN: may touch
+    for j in range(n):
+        checked_q[e, j] = q[e, j]
+    return near
+
+
+@numba.njit(cache=True, nogil=True, _nrt=False)
+def _place(q, e, joints, joint_frames, joint_axes, geoms, geom_frames, frames, placed) -> None:
+    """The geometries' placements at ``q[e]`` into ``placed`` (the joints' into ``frames``)."""
     for i in range(joints.shape[0]):  # the joints in Pinocchio's order: parents first
         _compose(frames[joints[i, 0]], joint_frames[i], frames[i + 1])
         _turn(frames[i + 1], joints[i, 2], joint_axes[i], q[e, joints[i, 1]])
     for g in range(geoms.shape[0]):
         _compose(frames[geoms[g, 0]], geom_frames[g], placed[g])
-    near = False
-    for p in range(pairs.shape[0]):
-        a, b = pairs[p, 0], pairs[p, 1]
-        d = _pair_bound(placed[a], geoms[a, 1], shapes[a], placed[b], geoms[b, 1], shapes[b])
-        clearance[e, p] = d - apart
-        near = near or not d > apart  # NaN: may touch
-    for j in range(q.shape[1]):
-        checked_q[e, j] = q[e, j]
-    return near

@@ -275,8 +275,9 @@ class ViolationMonitor(ViolationReadings, MonitorState):
 
     def pair_bound_arrays(self) -> tuple | None:
         """The pair bounds' arrays (:meth:`sim2real.deploy.monitors.pair_bounds.PairBounds.
-        arrays`) for a compiled call of their screen with :meth:`kernel_arrays`'s ``checked_q``
-        and ``clearance``, or None: no bounds (coal's distances screen the pairs)."""
+        arrays`) for a compiled call of their screen with :meth:`kernel_arrays`'s
+        ``pair_weights``, ``checked_q`` and ``clearance``, or None: no bounds (coal's distances
+        screen the pairs)."""
         return None if self._pair_bounds is None else self._pair_bounds.arrays()
 
     @property
@@ -329,7 +330,8 @@ class ViolationMonitor(ViolationReadings, MonitorState):
         if self._pair_bounds is not None:
             bound = self._bounds_call
             if bound is None or bound[0] is not q:
-                args = (*self.pair_bound_arrays(), self._checked_q, self._clearance, APART)
+                args = (*self.pair_bound_arrays(), self._pair_weights, self._margin)
+                args += (self._checked_q, self._clearance, APART)
                 bound = self._bounds_call = (q, bind(pair_lower_bounds, q, *args, rest=(0,)))
             if not bound[1](e):  # every pair's bound above APART: coal finds no contact
                 return False

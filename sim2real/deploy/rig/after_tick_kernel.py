@@ -173,7 +173,7 @@ def after_tick(
                     near = pair_lower_bounds(
                         q, t.b_joints, t.b_joint_frames, t.b_joint_axes, t.b_geoms,
                         t.b_geom_frames, t.b_shapes, t.b_pairs, t.b_frames, t.b_placed,
-                        t.v_checked_q, t.v_clearance, APART, e,
+                        t.v_weights, t.margin, t.v_checked_q, t.v_clearance, APART, e,
                     )  # fmt: skip
                     t.v_need[e] = near
                     need = need or near

@@ -5,9 +5,11 @@ ViolationMonitor`): coal runs only where a bound says a pair may touch.
 The monitor's joint-motion screen (:func:`sim2real.deploy.monitors.kernel.collision_screen`)
 keeps a pair apart while the joints have moved less since its last measured distance than that
 distance allows. A walking robot's legs move past that bound every tick, so coal used to run
-every tick. :class:`PairBounds` measures instead, in one compiled call, a lower bound of every
-pair's distance at the configuration itself (:func:`pair_lower_bounds`): the forward kinematics
-of the guard's fixed-base Pinocchio model (revolute joints), then per pair of its coal geometries
+every tick. :class:`PairBounds` measures instead, in one compiled call, a lower bound of each
+pair's distance at the configuration itself (:func:`pair_lower_bounds`; the pairs the motion
+since the last call may have brought near, the others keep their bound less that motion's): the
+forward kinematics of the guard's fixed-base Pinocchio model (revolute joints), then per pair
+of its coal geometries
 
 - two capsules or spheres (a sphere: a capsule of length 0): the distance of their segments less
   both radii (exact up to round-off);

@@ -31,25 +31,27 @@ def step_period(views, nstep: int, substep=None, tick: int = 0) -> None:
     step = mujoco.mj_step
     for e, view in enumerate(views):
         m, d = view[0], view[1]
-        quiet = SENSORS_OFF and nstep > 1 and m.nsensor
-        opt = m.opt
-        flags = opt.disableflags
-        if quiet:
-            opt.disableflags = flags | SENSORS_OFF
-        try:
+        if not (SENSORS_OFF and nstep > 1 and m.nsensor):  # as MuJoCo steps it
             if substep is None:
-                if quiet:
-                    step(m, d, nstep=nstep - 1)
-                    opt.disableflags = flags
-                    step(m, d)
-                else:
-                    step(m, d, nstep=nstep)
+                step(m, d, nstep=nstep)
                 continue
             for sub in range(nstep):
                 substep(e, tick, sub)
-                if quiet and sub == nstep - 1:
+                step(m, d)
+            continue
+        opt = m.opt
+        flags = opt.disableflags
+        opt.disableflags = flags | SENSORS_OFF
+        try:
+            if substep is None:
+                step(m, d, nstep=nstep - 1)
+                opt.disableflags = flags
+                step(m, d)
+                continue
+            for sub in range(nstep):
+                substep(e, tick, sub)
+                if sub == nstep - 1:
                     opt.disableflags = flags
                 step(m, d)
         finally:
-            if quiet:
-                opt.disableflags = flags
+            opt.disableflags = flags

@@ -4,6 +4,7 @@ every step, and the models' flags as they were."""
 
 import mujoco
 import numpy as np
+import pytest
 
 from sim2real.deploy.backends.sim import stepping
 from sim2real.deploy.backends.sim.plant import SimBackend
@@ -53,7 +54,7 @@ def test_a_period_in_two_calls_steps_as_one_call_of_every_step(go2):
     for _ in range(100):
         ctrl = rng.normal(0.0, 5.0, m.nu)
         ours.ctrl[:], every.ctrl[:] = ctrl, ctrl
-        stepping.step_period([(m, ours)], go2.decimation)
+        stepping.step_period([(m, ours)], [True], go2.decimation)
         mujoco.mj_step(m, every, nstep=go2.decimation)
         for field in ("qpos", "qvel", "act", "qacc_warmstart", "sensordata"):
             assert np.array_equal(getattr(ours, field), getattr(every, field)), field
@@ -80,3 +81,18 @@ def test_the_sensor_flag_is_set_for_all_steps_but_the_last_and_then_restored(go2
     period = [True] * (go2.decimation - 1) + [False]
     assert seen == period * 2
     assert [m.opt.disableflags for m in backend.models] == before
+
+
+def test_a_model_whose_readings_depend_on_earlier_steps_computes_them_in_every_step(go2):
+    """A sensor with a delay (MuJoCo keeps a history of its samples) is read from earlier steps:
+    such a model is stepped as MuJoCo steps it; go2's sensors (the last step's alone) are not."""
+    assert stepping.quiet_sensors(go2.mj_model)
+    if not hasattr(go2.mj_model, "sensor_delay"):
+        pytest.skip("this MuJoCo has no delayed sensors")
+    xml = (
+        '<mujoco><worldbody><body><joint type="hinge"/><geom size="0.1"/><site name="s"/>'
+        '</body></worldbody><sensor><gyro site="s" delay="0.01" nsample="3"/></sensor></mujoco>'
+    )
+    assert not stepping.quiet_sensors(mujoco.MjModel.from_xml_string(xml))
+    no_sensor = mujoco.MjModel.from_xml_string("<mujoco/>")
+    assert not stepping.quiet_sensors(no_sensor)

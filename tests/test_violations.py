@@ -357,7 +357,7 @@ def test_distances_measured_less_often_count_the_same_collisions(name, request, 
         true_position=lambda: q, true_velocity=lambda: dq, joint_torque=lambda: tau,
         end_effector_position=lambda out: out,
     )  # fmt: skip
-    monitors = {k: ViolationMonitor(robot, envs) for k in (16, 1)}
+    monitors = {k: ViolationMonitor(robot, envs, pair_bounds=False) for k in (16, 1)}
     measured = {16: 0, 1: 0}
     query = violations.collision_query
 
@@ -397,13 +397,16 @@ def _touching_pose(robot, rng, model, data, geom_model, geom_data):
     return None
 
 
-@pytest.mark.parametrize("name", ["go2", "arm6"])
-def test_the_screened_monitor_counts_what_checking_every_pair_counts(name, request):
+@pytest.mark.parametrize(("name", "bounds"), [("go2", False), ("go2", True), ("arm6", True)])
+def test_the_screened_monitor_counts_what_checking_every_pair_counts(
+    name, bounds, request, monkeypatch
+):
     """Over trajectories that glide from free poses into contact and out again, hold in contact,
-    wander and rest, the monitor (its screen sparing coal, its distances measured now and then)
-    counts the same self-collisions, the same pairs touching and every other count as the
+    wander and rest, the monitor (its screen sparing coal, its distances measured now and then,
+    or bounded by the compiled pair bounds where the model has them: go2's capsules, spheres and
+    box) counts the same self-collisions, the same pairs touching and every other count as the
     reference, which checks every pair on every tick; its screen spared checks, and long runs of
-    checks were met."""
+    checks were met (with the bounds: coal ran on fewer than 3 checks in 4)."""
     from sim2real.deploy.monitors import violations
     from sim2real.deploy.monitors.reference import ReferenceViolationMonitor
     from sim2real.deploy.safety.collision import collision_model
@@ -419,7 +422,17 @@ def test_the_screened_monitor_counts_what_checking_every_pair_counts(name, reque
         true_position=lambda: q, true_velocity=lambda: dq, joint_torque=lambda: tau,
         end_effector_position=lambda out: out,
     )  # fmt: skip
-    ours, reference = ViolationMonitor(robot, envs), ReferenceViolationMonitor(robot, envs)
+    ours = ViolationMonitor(robot, envs, pair_bounds=bounds)
+    reference = ReferenceViolationMonitor(robot, envs)
+    bounded = ours._pair_bounds is not None
+    assert bounded == (bounds and name == "go2")  # arm6's cylinders: coal's distances
+    queries, query = [0], violations.collision_query
+
+    def counted(*args, **kwargs):
+        queries[0] += 1
+        return query(*args, **kwargs)
+
+    monkeypatch.setattr(violations, "collision_query", counted)
     paths = [[] for _ in range(envs)]
     ticks, checks, longest = 1500, 0, 0
     for _ in range(ticks):
@@ -447,4 +460,7 @@ def test_the_screened_monitor_counts_what_checking_every_pair_counts(name, reque
     assert ours.counts["self_collision"].sum() > 50
     assert ours.pair_ticks.astype(bool).sum() > 2  # several pairs touched
     assert checks < 0.9 * ticks * envs  # the screen spared coal
-    assert longest > 4 * violations.DISTANCE_REFRESH  # past several refreshes of the distances
+    if bounded:
+        assert queries[0] < 0.75 * checks, (queries, checks)  # coal at each check without
+    else:
+        assert longest > 4 * violations.DISTANCE_REFRESH  # past several refreshes of distances

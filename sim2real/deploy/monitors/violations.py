@@ -35,6 +35,8 @@ import pinocchio as pin
 from sim2real.deploy.kernels.calls import bind
 from sim2real.deploy.monitors import kernel as mk
 from sim2real.deploy.monitors.monitor_state import MonitorState
+from sim2real.deploy.monitors.pair_bounds import APART, PairBounds, pair_lower_bounds
+from sim2real.deploy.monitors.violation_readings import ViolationReadings
 from sim2real.deploy.safety.collision import collision_model, collision_query
 from sim2real.deploy.safety.guard import SCREEN_MARGIN
 from sim2real.robots import Robot
@@ -55,12 +57,15 @@ _SCREEN_SHRINK = 1e-12
 DISTANCE_REFRESH = 16
 
 
-class ViolationMonitor(MonitorState):
+class ViolationMonitor(ViolationReadings, MonitorState):
     """Count true-state violations of ``envs`` simulated robots, per env and tick.
 
     Args:
         robot: The robot description (limits, workspace box, collision pairs).
         envs: Batch size (the backend's ``envs``).
+        pair_bounds: Screen the pairs by compiled lower bounds of their distances where the
+            model allows (:mod:`sim2real.deploy.monitors.pair_bounds`); False: by coal's
+            distances alone. The same counts either way.
 
     Attributes:
         counts: dict type (``VIOLATION_TYPES``) -> (envs,) int64, ticks on which that type
@@ -97,7 +102,7 @@ class ViolationMonitor(MonitorState):
 
     _state_name = "violations"
 
-    def __init__(self, robot: Robot, envs: int):
+    def __init__(self, robot: Robot, envs: int, pair_bounds: bool = True):
         if envs < 1:
             raise ValueError(f"envs: expected an integer >= 1, got {envs}")
         self.robot, self.envs = robot, envs
@@ -188,6 +193,8 @@ class ViolationMonitor(MonitorState):
         self._every_pair[self._pair_first, self._pair_second] = True
         self._some_pairs = False  # coal checks a part of the pairs (_pair_map) now
         self._pairs_bound = None  # pairs_to_check bound to q (see _active_pairs)
+        self._pair_bounds = PairBounds.build(self._model, self._geom_model) if pair_bounds else None
+        self._bounds_call = None  # pair_lower_bounds bound to q
         mk.warm_up()
 
     # ------------------------------------------------------------------ per tick
@@ -266,6 +273,13 @@ class ViolationMonitor(MonitorState):
             "down": self._down, "ticks": self._tick_count,
         }  # fmt: skip
 
+    def pair_bound_arrays(self) -> tuple | None:
+        """The pair bounds' arrays (:meth:`sim2real.deploy.monitors.pair_bounds.PairBounds.
+        arrays`) for a compiled call of their screen with :meth:`kernel_arrays`'s
+        ``pair_weights``, ``checked_q`` and ``clearance``, or None: no bounds (coal's distances
+        screen the pairs)."""
+        return None if self._pair_bounds is None else self._pair_bounds.arrays()
+
     @property
     def screen_margin(self) -> float:
         """m, the collision screen's margin (the guard's)."""
@@ -310,7 +324,22 @@ class ViolationMonitor(MonitorState):
         tick before too: then the distances measured there did not spare this tick a check, and
         they are measured again only every ``DISTANCE_REFRESH`` consecutive checks (a walking
         robot's legs pass the screen's bound every tick). The screen stays exact with the pair
-        of configuration and distances it keeps, however old: the same answers."""
+        of configuration and distances it keeps, however old: the same answers. A model with
+        :class:`~sim2real.deploy.monitors.pair_bounds.PairBounds` measures lower bounds of the
+        distances instead (compiled): coal only where one is ``APART`` or less, every pair."""
+        if self._pair_bounds is not None:
+            bound = self._bounds_call
+            if bound is None or bound[0] is not q:
+                args = (*self.pair_bound_arrays(), self._pair_weights, self._margin)
+                args += (self._checked_q, self._clearance, APART)
+                bound = self._bounds_call = (q, bind(pair_lower_bounds, q, *args, rest=(0,)))
+            if not bound[1](e):  # every pair's bound above APART: coal finds no contact
+                return False
+            self._every_pair_active()
+            hit = collision_query(self._model, self._data, self._geom_model, self._geom_data, q[e])
+            if hit:  # checked again next tick
+                self._clearance[e] = -np.inf
+            return hit
         tick = int(self._tick_count[0])
         run = self._run[e] + 1 if self._last_check[e] == tick - 1 else 0
         self._run[e], self._last_check[e] = run, tick
@@ -368,22 +397,6 @@ class ViolationMonitor(MonitorState):
         """
         self._excuse = allowed
 
-    def reference_pair_counts(self, env: int | None = None) -> dict[str, int]:
-        """Env ``env``'s (None: all envs') ticks per pair in the reference's own contacts,
-        most first."""
-        ticks = (
-            self.reference_pair_ticks.sum(axis=0) if env is None else self.reference_pair_ticks[env]
-        )
-        order = np.argsort(-ticks, kind="stable")
-        return {self.pair_names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
-
-    def pair_counts(self, env: int) -> dict[str, int]:
-        """Env ``env``'s ticks per collision pair that ever touched (``"geom_a|geom_b"``),
-        most first."""
-        ticks = self.pair_ticks[env]
-        order = np.argsort(-ticks, kind="stable")
-        return {self.pair_names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
-
     def _count(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, collided: bool) -> None:
         """The exact per-type tests (only on ticks the screen or coal flagged)."""
         hit, counts = self._hit, self.counts
@@ -421,64 +434,6 @@ class ViolationMonitor(MonitorState):
             hit |= flags
         self.any += hit & up
         self.down_any += hit & down
-
-    def hard_limit_joints(self, env: int) -> dict[str, int]:
-        """Env ``env``'s ticks beyond a hard limit per joint that ever was (while up), most
-        first."""
-        ticks = self.hard_joint_ticks[env]
-        order = np.argsort(-ticks, kind="stable")
-        names = self.robot.joint_names
-        return {names[k]: int(ticks[k]) for k in order if ticks[k] > 0}
-
-    def joint_excess(self, kind: str) -> dict[str, dict]:
-        """Every env's joints above their ``kind`` (``"velocity"`` or ``"effort"``) limit, most
-        ticks first: ``{joint: {"ticks": int, "excess": float}}``, the ticks (summed) and how far
-        above the limit at most (rad/s or N m; up or lying down)."""
-        ticks, excess = {
-            "velocity": (self.speed_joint_ticks, self.speed_joint_excess),
-            "effort": (self.effort_joint_ticks, self.effort_joint_excess),
-        }[kind]
-        ticks, excess = ticks.sum(axis=0), excess.max(axis=0)
-        order = np.argsort(-ticks, kind="stable")
-        names = self.robot.joint_names
-        return {
-            names[k]: {"ticks": int(ticks[k]), "excess": float(excess[k])}
-            for k in order
-            if ticks[k] > 0
-        }
-
-    def hard_limit_depths(self, env: int | None = None, down: bool = False) -> dict[str, dict]:
-        """Each joint that was ever beyond its hard limit (while up; with ``down``, while lying
-        down after a stop), most ticks first: ``{joint: {"ticks": int, "depth_rad": float}}``,
-        its ticks past and how far past it was at most (rad), of env ``env`` (None: the ticks
-        summed and the deepest over every env)."""
-        ticks = self.down_hard_joint_ticks if down else self.hard_joint_ticks
-        depth = self.down_hard_joint_depth if down else self.hard_joint_depth
-        ticks = ticks.sum(axis=0) if env is None else ticks[env]
-        depth = depth.max(axis=0) if env is None else depth[env]
-        order = np.argsort(-ticks, kind="stable")
-        names = self.robot.joint_names
-        return {
-            names[k]: {"ticks": int(ticks[k]), "depth_rad": float(depth[k])}
-            for k in order
-            if ticks[k] > 0
-        }
-
-    # ------------------------------------------------------------------ reading
-    def totals(self, down: bool = False) -> dict[str, int]:
-        """Ticks per type, summed over envs (and ``any``: ticks with any violation); of the
-        ticks the envs were up, or with ``down`` of those they lay damped after a stop."""
-        counts, any_ = (self.down_counts, self.down_any) if down else (self.counts, self.any)
-        out = {t: int(v.sum()) for t, v in counts.items()}
-        out["any"] = int(any_.sum())
-        return out
-
-    def env_counts(self, env: int, down: bool = False) -> dict[str, int]:
-        """Ticks per type of env ``env`` (and ``any``); with ``down``, of its ticks down."""
-        counts, any_ = (self.down_counts, self.down_any) if down else (self.counts, self.any)
-        out = {t: int(v[env]) for t, v in counts.items()}
-        out["any"] = int(any_[env])
-        return out
 
     # ------------------------------------------------------------------ checkpoints
     def _arrays(self) -> dict[str, np.ndarray]:

@@ -105,6 +105,12 @@ class FusedAfterTick:
             m_max=rig.monitor_cost.max_ns, mode=runtime.mode, goal=runtime.goal,
         )  # fmt: skip
         sizes = {"envs": envs, "n": n, "columns": BINS + 1}
+        bounds = rig.violations.pair_bound_arrays()  # the bounds' screen joins the call
+        values["has_bounds"] = bounds is not None
+        if bounds is not None:
+            values |= dict(zip(ak.BOUNDS_FIELDS, bounds, strict=True))
+        else:  # not read (has_bounds False)
+            values |= ak.AFTER.placeholders(ak.BOUNDS_FIELDS, sizes)
         goals = ("issued", "t_goal", "reached", "age", "due", "check", "ee", "distance", "hit")
         if task is not None:
             g = task.scheduler.kernel_arrays()

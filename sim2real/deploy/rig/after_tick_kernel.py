@@ -29,14 +29,16 @@ from numba.extending import intrinsic
 from sim2real.deploy.kernels.calls import pointer
 from sim2real.deploy.kernels.tables import Table
 from sim2real.deploy.monitors import kernel as mk
+from sim2real.deploy.monitors.pair_bounds import APART, pair_lower_bounds
 
 #: The call's arrays and constants: the plant's gathered state (``q``, ``dq``, ``tau``), the
 #: clock's scratch (``stamp``: s, ns, the monitors' end), the violation monitor's (``v_*``), the
 #: intervention monitor's (``i_*``; ``rows`` the guard's count rows), the monitors' and the
 #: hooks' cost histograms (``bins`` + 1 columns of ``bin_ns``), the runtime's modes and goals,
 #: the goal scheduler's (``g_*``: zeros without ``has_goals``), the motion figures' (zeros
-#: without motion), and ``views`` (3, envs): each env's ``MjData`` qpos, qvel and end-effector
-#: site addresses (MuJoCo's memory, alive with the plant's envs). ``margin`` m, ``dt`` s;
+#: without motion), ``b_*`` the pair bounds' arrays (``has_bounds``; :class:`sim2real.deploy.
+#: monitors.pair_bounds.PairBounds`), and ``views`` (3, envs): each env's ``MjData`` qpos, qvel
+#: and end-effector site addresses (MuJoCo's memory, alive with the plant's envs). ``margin`` m, ``dt`` s;
 #: ``running``, ``safe_stop``: the modes' codes; ``lies_down``: an env in SAFE_STOP or FAULTED
 #: lies down (a legged robot's), its ticks counted apart, the monitors' cost sample left to
 #: Python (which runs the estimation monitor).
@@ -55,7 +57,15 @@ AFTER = Table(
     g_ee="f8[envs,3]", g_best="f8[envs]", g_distance="f8[envs]", g_hit="b1[envs]",
     temperature="f8[envs,n]", peak="f8[envs,n]", prev_dq="f8[envs,n]", prev_acc="f8[envs,n]",
     jerk_sum="f8[envs,n]", jerk_ticks="i8[envs]", max_speed="f8[n]", h_counts="i8[*,columns]",
-    h_max="i8[*]", views="i8[3,envs]",
+    h_max="i8[*]", views="i8[3,envs]", has_bounds="b1", b_joints="i8[*,4]",
+    b_joint_frames="f8[*,4,3]", b_joint_axes="f8[*,3]", b_geoms="i8[*,2]",
+    b_geom_frames="f8[*,4,3]", b_shapes="f8[*,4]", b_pairs="i8[*,2]", b_frames="f8[*,4,3]",
+    b_placed="f8[*,4,3]",
+)  # fmt: skip
+#: The pair bounds' fields of ``AFTER``, in the order of ``PairBounds.arrays()``.
+BOUNDS_FIELDS = (
+    "b_joints", "b_joint_frames", "b_joint_axes", "b_geoms", "b_geom_frames", "b_shapes",
+    "b_pairs", "b_frames", "b_placed",
 )  # fmt: skip
 #: The rows of ``views``.
 QPOS, QVEL, SITE = 0, 1, 2
@@ -156,6 +166,17 @@ def after_tick(
         need = mk.collision_screen(
             q, t.v_checked_q, t.v_clearance, t.v_weights, t.margin, t.v_tmp, t.v_need
         )
+        if need and t.has_bounds:  # coal only for an env with a pair within APART
+            need = False
+            for e in range(envs):
+                if t.v_need[e]:
+                    near = pair_lower_bounds(
+                        q, t.b_joints, t.b_joint_frames, t.b_joint_axes, t.b_geoms,
+                        t.b_geom_frames, t.b_shapes, t.b_pairs, t.b_frames, t.b_placed,
+                        t.v_weights, t.margin, t.v_checked_q, t.v_clearance, APART, e,
+                    )  # fmt: skip
+                    t.v_need[e] = near
+                    need = need or near
         if need:
             code |= COLLISION_CHECK
     if mk.violation_screen(

@@ -49,6 +49,7 @@ from sim2real.deploy.backends.sim.plant_kernel import (
 )
 from sim2real.deploy.backends.sim.sensors import JointSensorModel
 from sim2real.deploy.backends.sim.state import MujocoState, PlantState
+from sim2real.deploy.backends.sim.stepping import quiet_sensors, step_period
 from sim2real.deploy.backends.sim.truth import TrueState
 from sim2real.deploy.core.backend import BackendLifecycle, SensorFrame
 from sim2real.deploy.core.delegate import delegate, forward
@@ -137,6 +138,7 @@ class SimBackend(BackendLifecycle):
         self.disturbances = SimDisturbances(robot, self.models, self.datas)
         self._jnt_offset = 1 if self.free_base else 0  # the model's free joint (disturbances)
         self._views: list[tuple] = [()] * envs
+        self._quiet = [False] * envs  # each env's model's stepping.quiet_sensors (see _bind)
         self._qvel_views: list[np.ndarray] = [np.zeros(0)] * envs  # the joints' qvel (see _bind)
         #: the drives: derated torque limits, anti-windup (velocity mode)
         self.drives = SimDrives(robot, mode, envs, self.models, self.free_base)
@@ -267,6 +269,7 @@ class SimBackend(BackendLifecycle):
         ctrl = d.ctrl.reshape(-1, self.n_joints)
         qpos, force = d.qpos[self._qpos_offset :], d.qfrc_actuator[self._qvel_offset :]
         self._views[e] = (m, d, ctrl, qpos, force, d.warning.number[WARNING_SLICE])
+        self._quiet[e] = quiet_sensors(m)
         self._qvel_views[e] = d.qvel[self._qvel_offset :]
         self._actfrc[e] = m.jnt_actfrcrange[self._jnt_offset : self._jnt_offset + self.n_joints]
         if self._compiled is not None:  # the kernels' addresses of the new views
@@ -391,7 +394,7 @@ class SimBackend(BackendLifecycle):
                 stepped; the thermal and sensor models have not, the streams have not drawn
                 unless they are not numpy Generators).
         """
-        compiled, nstep, step = self._compiled, self.decimation, mujoco.mj_step
+        compiled, nstep = self._compiled, self.decimation
         tick = self.tick
         status = compiled.before(tick)  # before_physics(table, tick)
         if status & STALE:  # a copied plant: views of its own MjData, its own table
@@ -402,15 +405,10 @@ class SimBackend(BackendLifecycle):
             status = compiled.before(tick)
         if status & DERATE:
             self.drives.set_derated_limits(self.thermal.winding_temperature)
-        if not self._stepwise:
-            for m, d, _ctrl, _q, _force, _warnings in self._views:
-                step(m, d, nstep=nstep)
-        else:  # delayed commands, and a torque range that follows the joint speed
-            substep = compiled.substep  # actuator_substep(table, e, tick, sub), bound
-            for e, (m, d, _ctrl, _q, _force, _warnings) in enumerate(self._views):
-                for sub in range(nstep):
-                    substep(e, tick, sub)
-                    step(m, d)
+        # the sensors in the last step only; with delayed commands or a torque range that
+        # follows the joint speed one step at a time (actuator_substep(table, e, tick, sub))
+        substep = compiled.substep if self._stepwise else None
+        step_period(self._views, self._quiet, nstep, substep, tick)
         tick += 1
         sensors = self.joint_sensors
         sample = NO_SAMPLE

@@ -147,29 +147,40 @@ def _cpu_phase(item, phase):
     _cpu_line(_worker(), item.nodeid, phase, f"{cpu:.3f}", f"{wall:.3f}", f"{time.time():.3f}")
 
 
-#: The frozen heap may grow by this fraction (objects a test keeps, or garbage cycles a fixture
-#: dropped while the heap was frozen) before a test first collects the whole heap once.
+#: The process's resident memory may grow by this fraction (what tests keep, or garbage cycles a
+#: fixture let go while the heap was frozen) before a test first collects the whole heap once.
 HEAP_GROWTH = 0.25
-_heap = {"collected": 0}
+_heap = {"resident": 0}
+
+
+def _resident_bytes() -> int:
+    """This process's resident memory (Linux: /proc/self/statm; elsewhere its peak)."""
+    try:
+        with open("/proc/self/statm", "rb") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
-    """Each test over a frozen heap (see :func:`pytest_collection_finish`). After it, its own
-    garbage cycles are collected (the heap is still frozen: a walk of its own objects only);
-    a heap grown by :data:`HEAP_GROWTH` since the last whole collection is collected whole
-    first, so cycles let go while frozen (a module fixture's) are not kept for the session."""
-    gc.freeze()
-    if gc.get_freeze_count() > (1 + HEAP_GROWTH) * _heap["collected"]:
-        gc.unfreeze()
+    """Each test over a frozen heap (see :func:`pytest_collection_finish`;
+    ``heap_frozen``, which the runtime's run and the emulators' pause nest in). After it, its own
+    garbage cycles are collected (the heap still frozen: a walk of its own objects only); a
+    process grown by :data:`HEAP_GROWTH` since the last whole collection collects the whole heap
+    first, so that cycles let go while frozen (a module fixture's) are not kept for the session."""
+    from sim2real.deploy.core.collector import heap_frozen
+
+    if _resident_bytes() > (1 + HEAP_GROWTH) * _heap["resident"]:
         gc.collect()
-        gc.freeze()
-        _heap["collected"] = gc.get_freeze_count()
-    try:
-        yield
-    finally:
-        gc.collect()
-        gc.unfreeze()
+        _heap["resident"] = _resident_bytes()
+    with heap_frozen():
+        try:
+            yield
+        finally:
+            gc.collect()
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -147,6 +147,9 @@ def _cpu_phase(item, phase):
     _cpu_line(_worker(), item.nodeid, phase, f"{cpu:.3f}", f"{wall:.3f}", f"{time.time():.3f}")
 
 
+#: Only in the suite's pytest-xdist workers: the wall-clock runs (emulators on threads of the test
+#: process, timed against a subprocess's loop) keep the collector as a user's process has it.
+WORKER_FREEZE = "PYTEST_XDIST_WORKER" in os.environ
 #: The process's resident memory may grow by this fraction (what tests keep, or garbage cycles a
 #: fixture let go while the heap was frozen) before a test first collects the whole heap once.
 HEAP_GROWTH = 0.25
@@ -171,6 +174,9 @@ def pytest_runtest_protocol(item, nextitem):
     garbage cycles are collected (the heap still frozen: a walk of its own objects only); a
     process grown by :data:`HEAP_GROWTH` since the last whole collection collects the whole heap
     first, so that cycles let go while frozen (a module fixture's) are not kept for the session."""
+    if not WORKER_FREEZE:
+        yield
+        return
     from sim2real.deploy.core.collector import heap_frozen
 
     if _resident_bytes() > (1 + HEAP_GROWTH) * _heap["resident"]:

@@ -45,8 +45,9 @@ def heap_frozen() -> Iterator[None]:
     when the first began (an outer freeze owns it).
 
     Whether the heap is frozen is read once, when no body runs: ``gc.get_freeze_count()`` walks
-    every frozen object (~25 ms for 280,000), so a freeze held by this function is counted here
-    instead, and a caller that holds one over many runs (a test harness) uses this function.
+    every frozen object (docs/measurements.md, the garbage collector), so a freeze held by this
+    function is counted here instead, and a caller that holds one over many runs (a test
+    harness) uses this function.
     """
     with _holders_lock:
         if _holders["count"] == 0:

@@ -126,13 +126,12 @@ def _worker() -> str:
 # once (Runtime.__init__: its set-up's garbage), as do the emulators' loops (core/collector.py).
 # So the collector is off while the modules are imported (from conftest's import, which comes
 # first) and on again after, and each test runs over a frozen heap (gc.freeze: what exists
-# at its start is in the permanent generation, which collections skip; gc.unfreeze at its end,
-# so nothing a test left stays uncollected): a full collection in a test walks that test's own
+# at its start is in the permanent generation, which collections skip; unfrozen at its end, so
+# nothing a test left stays uncollected; only in the xdist workers, WORKER_FREEZE): a full collection in a test walks that test's own
 # objects. The runtime's run and the emulators' loops freeze the heap too and leave it frozen when
 # it was at their start (sim2real/deploy/core/collector.py, heap_frozen: the freeze nests).
 def pytest_collection_finish(session):
-    if not gc.isenabled():
-        gc.enable()
+    gc.enable()
     if CPU_LOG:
         _cpu_line(_worker(), "<collection>", "-", f"{_cpu_s():.3f}", "-", f"{time.time():.3f}")
 

@@ -71,7 +71,7 @@ def collector_paused() -> Iterator[None]:
     however the body ends: the collector enabled again if it was, and ``gc.unfreeze()`` unless
     the heap was frozen at entry (:func:`heap_frozen`). Nested or concurrent uses (an emulator's
     thread beside a runtime in one test process) leave the collector enabled once the last of
-    them whose entry found it enabled exits, and the heap unfrozen by the one that froze it.
+    them whose entry found it enabled exits, and the heap unfrozen by the last of them to end.
     """
     gc.collect()
     with heap_frozen():
